@@ -1,0 +1,159 @@
+"""Pinhole cameras (OpenCV convention) and their JSON form.
+
+x right, y down, z forward; pixel (u, v) = (0, 0) is the centre of the top-left
+pixel, so a centred principal point is ``((W - 1) / 2, (H - 1) / 2)``.
+``world_to_camera`` maps world points to camera points.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+
+__all__ = ["Camera", "focal_from_fov", "MAX_IMAGE_SIDE"]
+
+#: Largest image side any command accepts (a guard against absurd sizes).
+MAX_IMAGE_SIDE = 8192
+
+
+def focal_from_fov(width: int, fov_deg: float = 60.0) -> float:
+    """Focal length in pixels for a horizontal field of view in degrees."""
+    return 0.5 * width / math.tan(math.radians(fov_deg) / 2.0)
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A pinhole camera.
+
+    Attributes
+    ----------
+    K : (3, 3) float64
+        Intrinsics ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]``.
+    world_to_camera : (4, 4) float64
+        Rigid transform from world to camera coordinates.
+    width, height : int
+        Image size in pixels.
+    """
+
+    K: np.ndarray
+    world_to_camera: np.ndarray
+    width: int
+    height: int
+
+    def __post_init__(self) -> None:
+        k = np.asarray(self.K, dtype=np.float64)
+        w2c = np.asarray(self.world_to_camera, dtype=np.float64)
+        if k.shape != (3, 3) or w2c.shape != (4, 4):
+            raise InputError(f"camera: K must be 3x3 and world_to_camera 4x4, got {k.shape} and {w2c.shape}")
+        if not (np.all(np.isfinite(k)) and np.all(np.isfinite(w2c))):
+            raise InputError("camera: intrinsics or pose contain NaN or infinite values")
+        if not (k[0, 0] > 0 and k[1, 1] > 0):
+            raise InputError(f"camera: focal lengths must be positive, got fx={k[0, 0]}, fy={k[1, 1]}")
+        r = w2c[:3, :3]
+        if not np.allclose(r @ r.T, np.eye(3), atol=1e-4) or np.linalg.det(r) < 0:
+            raise InputError("camera: world_to_camera rotation is not a proper rotation")
+        for name in ("width", "height"):
+            v = getattr(self, name)
+            if int(v) != v or not 1 <= int(v) <= MAX_IMAGE_SIDE:
+                raise InputError(f"camera: {name} must be an integer in 1..{MAX_IMAGE_SIDE}, got {v}")
+            object.__setattr__(self, name, int(v))
+        object.__setattr__(self, "K", k)
+        object.__setattr__(self, "world_to_camera", w2c)
+
+    @staticmethod
+    def from_fov(width: int, height: int, fov_deg: float = 60.0,
+                 world_to_camera: np.ndarray | None = None) -> "Camera":
+        """A centred camera with the given horizontal field of view."""
+        f = focal_from_fov(width, fov_deg)
+        k = np.array([[f, 0, (width - 1) / 2], [0, f, (height - 1) / 2], [0, 0, 1]])
+        return Camera(k, np.eye(4) if world_to_camera is None else world_to_camera, width, height)
+
+    @property
+    def fx(self) -> float:
+        return float(self.K[0, 0])
+
+    @property
+    def fy(self) -> float:
+        return float(self.K[1, 1])
+
+    @property
+    def cx(self) -> float:
+        return float(self.K[0, 2])
+
+    @property
+    def cy(self) -> float:
+        return float(self.K[1, 2])
+
+    @property
+    def center(self) -> np.ndarray:
+        """(3,) camera centre in world coordinates."""
+        r, t = self.world_to_camera[:3, :3], self.world_to_camera[:3, 3]
+        return -r.T @ t
+
+    def world_to_camera_points(self, points: np.ndarray) -> np.ndarray:
+        """World points (N, 3) → camera points (N, 3)."""
+        return points @ self.world_to_camera[:3, :3].T + self.world_to_camera[:3, 3]
+
+    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """World points (N, 3) → pixels (N, 2) and depths (N,)."""
+        pc = self.world_to_camera_points(np.asarray(points, dtype=np.float64))
+        z = pc[:, 2]
+        uv = (pc[:, :2] / np.where(np.abs(z) < 1e-12, 1e-12, z)[:, None]) * [self.fx, self.fy] + [self.cx, self.cy]
+        return uv, z
+
+    def resized(self, width: int, height: int) -> "Camera":
+        """The same view at another resolution (intrinsics scaled, pixel centres kept)."""
+        sx, sy = width / self.width, height / self.height
+        k = self.K.copy()
+        k[0, 0] *= sx
+        k[1, 1] *= sy
+        k[0, 2] = (k[0, 2] + 0.5) * sx - 0.5
+        k[1, 2] = (k[1, 2] + 0.5) * sy - 0.5
+        return replace(self, K=k, width=width, height=height)
+
+    def with_pose(self, world_to_camera: np.ndarray) -> "Camera":
+        return replace(self, world_to_camera=np.asarray(world_to_camera, dtype=np.float64))
+
+    def to_dict(self) -> dict:
+        """The ``CAMERA.json`` form (DESIGN.md contract)."""
+        return {"width": self.width, "height": self.height, "fx": self.fx, "fy": self.fy,
+                "cx": self.cx, "cy": self.cy, "world_to_camera": self.world_to_camera.tolist()}
+
+    @staticmethod
+    def from_dict(d: object) -> "Camera":
+        """Parse the ``CAMERA.json`` form, naming the first missing or bad key."""
+        if not isinstance(d, dict):
+            raise InputError("camera: expected a JSON object")
+        for key in ("width", "height", "fx", "fy", "cx", "cy", "world_to_camera"):
+            if key not in d:
+                raise InputError(f"camera: missing key '{key}'")
+        for key in ("width", "height", "fx", "fy", "cx", "cy"):
+            if isinstance(d[key], bool) or not isinstance(d[key], (int, float)) or not math.isfinite(d[key]):
+                raise InputError(f"camera: '{key}' must be a finite number, got {d[key]!r}")
+        try:
+            w2c = np.array(d["world_to_camera"], dtype=np.float64)
+        except (TypeError, ValueError):
+            raise InputError("camera: 'world_to_camera' must be a 4x4 list of numbers") from None
+        if w2c.shape != (4, 4):
+            raise InputError(f"camera: 'world_to_camera' must be 4x4, got shape {w2c.shape}")
+        k = np.array([[d["fx"], 0, d["cx"]], [0, d["fy"], d["cy"]], [0, 0, 1]], dtype=np.float64)
+        return Camera(k, w2c, d["width"], d["height"])
+
+    @staticmethod
+    def load(path: str | Path) -> "Camera":
+        """Read a ``CAMERA.json`` file."""
+        try:
+            text = Path(path).read_text()
+        except (OSError, UnicodeDecodeError) as e:
+            raise InputError(f"cannot read camera file {path}: {e.strerror if isinstance(e, OSError) else e}") from None
+        try:
+            d = json.loads(text)
+        except json.JSONDecodeError as e:
+            raise InputError(f"camera file {path} is not valid JSON: {e.msg} at line {e.lineno}") from None
+        return Camera.from_dict(d)

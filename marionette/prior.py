@@ -1,0 +1,133 @@
+"""The SpaT prior: per-part rigid steps extracted from a source video.
+
+Motion Marionette (Sec. 4.1) stores, for each time step t, the rigid step
+``μ_{t+1} = R_t μ_t + δ_t`` (its Eq. 5). We keep the contract of DESIGN.md:
+cumulative poses from frame 0, the steps derived from them, and each part's
+centroid and size so a transfer can move parts about their own centres.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import InputError
+from .geometry import invert_transform
+
+__all__ = ["SpatPrior", "PRIOR_FORMAT", "PRIOR_VERSION"]
+
+PRIOR_FORMAT = "marionette.spat"
+PRIOR_VERSION = 1
+
+
+@dataclass(frozen=True)
+class SpatPrior:
+    """Spatial-temporal prior for K rigid parts over T frames.
+
+    Attributes
+    ----------
+    fps : float
+        Source frame rate.
+    image_size : (2,) int
+        Source width, height.
+    intrinsics : (3, 3) float64
+        Source camera K.
+    poses : (K, T, 4, 4) float64
+        ``poses[k, t]`` maps part k's points at frame 0 to frame t, in the
+        source world frame (camera of frame 0); ``poses[:, 0]`` is identity.
+    rotations : (K, T-1, 3, 3) float64
+        Step rotations ``R_t`` with ``μ_{t+1} = R_t μ_t + δ_t``.
+    translations : (K, T-1, 3) float64
+        Step translations ``δ_t``.
+    centroids : (K, T, 3) float64
+        Part centre per frame.
+    radii : (K,) float64
+        Part size: RMS distance of its points to its centroid at frame 0.
+    extras : dict
+        Optional arrays saved alongside (``tracks``, ``labels``, …); ``metadata``
+        is a JSON-serialisable dict.
+    """
+
+    fps: float
+    image_size: np.ndarray
+    intrinsics: np.ndarray
+    poses: np.ndarray
+    rotations: np.ndarray
+    translations: np.ndarray
+    centroids: np.ndarray
+    radii: np.ndarray
+    extras: dict = field(default_factory=dict)
+    metadata: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        poses = np.asarray(self.poses, dtype=np.float64)
+        if poses.ndim != 4 or poses.shape[2:] != (4, 4) or poses.shape[0] < 1 or poses.shape[1] < 2:
+            raise InputError(f"prior key 'poses' must have shape (K, T, 4, 4) with K >= 1, T >= 2, got {poses.shape}")
+        k, t = poses.shape[:2]
+        expected = {
+            "image_size": (2,), "intrinsics": (3, 3), "poses": (k, t, 4, 4),
+            "rotations": (k, t - 1, 3, 3), "translations": (k, t - 1, 3),
+            "centroids": (k, t, 3), "radii": (k,),
+        }
+        for name, shape in expected.items():
+            try:
+                value = np.asarray(getattr(self, name), dtype=np.int64 if name == "image_size" else np.float64)
+            except (TypeError, ValueError):
+                raise InputError(f"prior key '{name}' is not numeric") from None
+            if value.shape != shape:
+                raise InputError(f"prior key '{name}' must have shape {shape}, got {value.shape}")
+            if not np.all(np.isfinite(value)):
+                raise InputError(f"prior key '{name}' contains NaN or infinite values")
+            object.__setattr__(self, name, value)
+        if not (np.isfinite(self.fps) and self.fps > 0):
+            raise InputError(f"prior key 'fps' must be a positive number, got {self.fps}")
+        object.__setattr__(self, "fps", float(self.fps))
+        if np.any(self.image_size <= 0):
+            raise InputError(f"prior key 'image_size' must be positive, got {self.image_size.tolist()}")
+        if np.any(self.radii <= 0):
+            raise InputError("prior key 'radii' must be positive")
+        r = self.rotations
+        if not np.allclose(r @ np.swapaxes(r, -1, -2), np.eye(3), atol=1e-5) or np.any(np.linalg.det(r) < 0):
+            raise InputError("prior key 'rotations' holds matrices that are not rotations")
+        if not np.allclose(self.poses[:, 0], np.eye(4), atol=1e-9):
+            raise InputError("prior key 'poses' must start with identity at frame 0")
+
+    @property
+    def num_parts(self) -> int:
+        return self.poses.shape[0]
+
+    @property
+    def num_frames(self) -> int:
+        return self.poses.shape[1]
+
+    @staticmethod
+    def from_poses(poses: np.ndarray, centroids: np.ndarray, radii: np.ndarray, *, fps: float,
+                   image_size: tuple[int, int], intrinsics: np.ndarray,
+                   extras: dict | None = None, metadata: dict | None = None) -> "SpatPrior":
+        """Build a prior from cumulative poses (K, T, 4, 4); steps follow from them.
+
+        The step from t to t+1 is ``poses[t+1] @ inv(poses[t])``, so that
+        composing the steps reproduces the poses exactly.
+        """
+        poses = np.asarray(poses, dtype=np.float64)
+        poses = invert_transform(poses[:, :1]) @ poses  # make frame 0 exactly identity
+        steps = poses[:, 1:] @ invert_transform(poses[:, :-1])
+        return SpatPrior(
+            fps=fps, image_size=np.asarray(image_size), intrinsics=intrinsics, poses=poses,
+            rotations=steps[..., :3, :3], translations=steps[..., :3, 3], centroids=centroids,
+            radii=radii, extras=dict(extras or {}), metadata=dict(metadata or {}),
+        )
+
+    @staticmethod
+    def identity(num_frames: int, *, fps: float, image_size: tuple[int, int], intrinsics: np.ndarray,
+                 centroid: np.ndarray, radius: float, metadata: dict | None = None) -> "SpatPrior":
+        """A one-part prior with no motion (for videos where nothing moves)."""
+        poses = np.tile(np.eye(4), (1, num_frames, 1, 1))
+        cent = np.tile(np.asarray(centroid, dtype=np.float64), (1, num_frames, 1))
+        return SpatPrior.from_poses(poses, cent, np.array([radius]), fps=fps, image_size=image_size,
+                                    intrinsics=intrinsics, metadata=metadata)
+
+    def metadata_json(self) -> str:
+        return json.dumps(self.metadata, sort_keys=True)
