@@ -10,7 +10,7 @@ from pathlib import Path
 
 from ..errors import InputError
 
-__all__ = ["atomic_path", "check_output_path"]
+__all__ = ["atomic_path", "check_output_path", "check_output_dir"]
 
 
 def check_output_path(path: str | Path) -> Path:
@@ -23,6 +23,19 @@ def check_output_path(path: str | Path) -> Path:
         raise InputError(f"output folder {parent} is not writable")
     if path.is_dir():
         raise InputError(f"output path {path} is a folder")
+    return path
+
+
+def check_output_dir(path: str | Path) -> Path:
+    """Check that ``path`` is a writable folder or can be made as one; return it."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise InputError(f"{path} exists and is not a folder")
+    if path.is_dir():
+        if not os.access(path, os.W_OK):
+            raise InputError(f"output folder {path} is not writable")
+        return path
+    check_output_path(path)
     return path
 
 

@@ -1,0 +1,195 @@
+"""Command line: a thin layer over :mod:`marionette.pipeline` (contract in DESIGN.md).
+
+Every command prints one ``error: …`` line on stderr and exits with code 2 on
+bad input or usage, and writes its outputs atomically.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Annotated, Optional
+
+import click
+import numpy as np
+import typer
+
+from . import pipeline
+from .camera import MAX_IMAGE_SIDE, Camera
+from .errors import InputError
+from .io import read_ply, read_prior, write_image, write_prior
+from .io.atomic import check_output_dir, check_output_path
+from .progress import Reporter
+from .render import render
+from .source import ExtractOptions
+
+app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
+                  help="Transfer the rigid motion of a video onto a single image, via 3D Gaussians.")
+
+VIDEO_SUFFIXES = (".mp4", ".gif", "")
+
+Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bars or messages.")]
+Output = Annotated[Path, typer.Option("--output", "-o", help="Output file.")]
+
+
+def _parse_rgb(text: str) -> tuple[float, float, float]:
+    """'R,G,B' with components in [0, 1] or 0..255 → floats in [0, 1]."""
+    try:
+        rgb = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        raise InputError(f"--background must be R,G,B numbers, got {text!r}") from None
+    if len(rgb) != 3 or not all(np.isfinite(rgb)) or min(rgb) < 0:
+        raise InputError(f"--background must be three non-negative numbers R,G,B, got {text!r}")
+    if max(rgb) > 1:
+        if max(rgb) > 255:
+            raise InputError(f"--background components must be at most 255, got {text!r}")
+        rgb = tuple(x / 255 for x in rgb)
+    return rgb
+
+
+def _parse_size(text: str | None) -> tuple[int, int] | None:
+    if text is None:
+        return None
+    try:
+        w, h = (int(x) for x in text.lower().split("x"))
+    except ValueError:
+        raise InputError(f"--size must be WIDTHxHEIGHT, got {text!r}") from None
+    if not (16 <= w <= MAX_IMAGE_SIDE and 16 <= h <= MAX_IMAGE_SIDE):
+        raise InputError(f"--size sides must be within 16..{MAX_IMAGE_SIDE}, got {text!r}")
+    return w, h
+
+
+def _parse_parts(text: str) -> int:
+    if text == "auto":
+        return 1
+    if not text.isdigit() or int(text) < 1:
+        raise InputError(f"--parts must be 'auto' or a positive integer, got {text!r}")
+    if int(text) > 1:
+        raise InputError("--parts above 1 is not supported by this version's extractor yet")
+    return 1
+
+
+def _video_output(path: Path) -> Path:
+    if path.suffix.lower() not in VIDEO_SUFFIXES:
+        raise InputError(f"unsupported video output {path.name!r}: use .mp4, .gif or a folder name")
+    return check_output_path(path)
+
+
+def _transfer_checks(frames: Optional[int], speed: float, fps: Optional[float]) -> None:
+    if frames is not None and not 2 <= frames <= 100_000:
+        raise InputError(f"--frames must be between 2 and 100000, got {frames}")
+    if not (np.isfinite(speed) and speed > 0):
+        raise InputError(f"--speed must be positive, got {speed}")
+    if fps is not None and not (np.isfinite(fps) and 0 < fps <= 240):
+        raise InputError(f"--fps must be in (0, 240], got {fps}")
+
+
+@app.command()
+def demo(output: Annotated[Path, typer.Option("--output", "-o", help="Output folder.")] = Path("marionette-demo"),
+         quiet: Quiet = False) -> None:
+    """Run the whole method on a synthetic source and target; writes DIR/*.mp4."""
+    from .demo import run_demo
+
+    check_output_dir(output)
+    run_demo(output, reporter=Reporter(quiet))
+
+
+@app.command()
+def extract(source: Annotated[Path, typer.Argument(help="Video file or folder of frames.")],
+            output: Output,
+            masks: Annotated[Optional[Path], typer.Option(help="Folder of per-frame mask PNGs.")] = None,
+            focal: Annotated[Optional[float], typer.Option(help="Focal length in pixels (default: 60° FOV).")] = None,
+            parts: Annotated[str, typer.Option(help="Number of rigid parts, or 'auto'.")] = "auto",
+            quiet: Quiet = False) -> None:
+    """Extract the SpaT prior (per-part rigid motion) from a source video."""
+    _parse_parts(parts)
+    check_output_path(output)
+    prior = pipeline.extract(source, masks=masks, focal=focal, options=ExtractOptions(), reporter=Reporter(quiet))
+    write_prior(output, prior)
+
+
+def _transfer_and_render(prior, target: Path, output: Path, frames, speed, fps, background, size, reporter) -> None:
+    lifted = pipeline.load_target(target, size=size)
+    trajectory = pipeline.transfer(prior, lifted, frames=frames, speed=speed)
+    pipeline.render_video(output, lifted.gaussians, trajectory, lifted.camera, fps=fps or prior.fps,
+                          background=background, reporter=reporter)
+
+
+Frames = Annotated[Optional[int], typer.Option(help="Number of output frames (default: the source's length).")]
+Speed = Annotated[float, typer.Option(help="Playback speed relative to the source.")]
+Fps = Annotated[Optional[float], typer.Option(help="Output frame rate (default: the source's).")]
+Background = Annotated[str, typer.Option(help="Background colour R,G,B (0-1 or 0-255).")]
+Size = Annotated[Optional[str], typer.Option(help="Output size WIDTHxHEIGHT for a .ply target (default 512x512); an image target is resized to it.")]
+
+
+@app.command()
+def transfer(prior: Annotated[Path, typer.Argument(help="SpaT prior .npz.")],
+             target: Annotated[Path, typer.Argument(help="Target image (RGB/RGBA) or 3DGS .ply.")],
+             output: Output, frames: Frames = None, speed: Speed = 1.0, fps: Fps = None,
+             background: Background = "1,1,1", size: Size = None, quiet: Quiet = False) -> None:
+    """Apply a SpaT prior to a target image or .ply and render the video."""
+    _transfer_checks(frames, speed, fps)
+    bg, sz = _parse_rgb(background), _parse_size(size)
+    _video_output(output)
+    _transfer_and_render(read_prior(prior), target, output, frames, speed, fps, bg, sz, Reporter(quiet))
+
+
+@app.command()
+def run(source: Annotated[Path, typer.Argument(help="Video file or folder of frames.")],
+        target: Annotated[Path, typer.Argument(help="Target image (RGB/RGBA) or 3DGS .ply.")],
+        output: Output,
+        masks: Annotated[Optional[Path], typer.Option(help="Folder of per-frame mask PNGs.")] = None,
+        focal: Annotated[Optional[float], typer.Option(help="Focal length in pixels (default: 60° FOV).")] = None,
+        parts: Annotated[str, typer.Option(help="Number of rigid parts, or 'auto'.")] = "auto",
+        frames: Frames = None, speed: Speed = 1.0, fps: Fps = None, background: Background = "1,1,1",
+        size: Size = None, quiet: Quiet = False) -> None:
+    """Extract the source's motion and transfer it onto the target in one go."""
+    _parse_parts(parts)
+    _transfer_checks(frames, speed, fps)
+    bg, sz = _parse_rgb(background), _parse_size(size)
+    _video_output(output)
+    if not Path(target).exists():
+        raise InputError(f"target {target} does not exist")
+    reporter = Reporter(quiet)
+    prior = pipeline.extract(source, masks=masks, focal=focal, options=ExtractOptions(), reporter=reporter)
+    _transfer_and_render(prior, target, output, frames, speed, fps, bg, sz, reporter)
+
+
+@app.command("render")
+def render_cmd(scene: Annotated[Path, typer.Argument(help="3DGS .ply file.")],
+               camera: Annotated[Path, typer.Option(help="CAMERA.json (DESIGN.md contract).")],
+               output: Output, background: Background = "1,1,1") -> None:
+    """Render a 3DGS .ply from a camera to a PNG."""
+    bg = _parse_rgb(background)
+    if output.suffix.lower() not in (".png", ".jpg", ".jpeg"):
+        raise InputError(f"unsupported image output {output.name!r}: use .png or .jpg")
+    check_output_path(output)
+    cam = Camera.load(camera)
+    gaussians = read_ply(scene)
+    out = render(gaussians, cam, bg)
+    write_image(output, (np.clip(out.image, 0, 1) * 255 + 0.5).astype(np.uint8))
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point: run the CLI, turning bad input into ``error: …`` and exit code 2."""
+    try:
+        app(args=argv, standalone_mode=False, prog_name="marionette")
+    except click.exceptions.Exit as e:
+        return e.exit_code
+    except click.exceptions.Abort:
+        print("error: interrupted", file=sys.stderr)
+        return 130
+    except click.ClickException as e:
+        print(f"error: {e.format_message().splitlines()[0]}", file=sys.stderr)
+        return 2
+    except InputError as e:
+        print(f"error: {str(e).splitlines()[0]}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("error: interrupted", file=sys.stderr)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,143 @@
+"""The whole method as a few library calls; the command line is a thin layer over these.
+
+``extract`` (source video → SpaT prior), ``load_target`` (image or .ply →
+Gaussians and a reference camera), ``transfer`` (prior + target →
+trajectory), ``render_video`` (trajectory → video file).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .camera import Camera, focal_from_fov
+from .errors import InputError
+from .gaussians import Gaussians
+from .io import read_image, read_masks, read_ply, read_video, write_video
+from .prior import SpatPrior
+from .progress import Reporter
+from .render import render
+from .source import ExtractOptions, extract_prior
+from .target.lift import LiftedTarget, LiftOptions, lift_image
+from .trajectory import Trajectory
+from .transfer.controls import retime
+from .transfer.parts import labels_from_layout
+from .transfer.velocity import integrate
+
+__all__ = ["extract", "load_target", "transfer", "render_frames", "render_video", "side_by_side",
+           "source_intrinsics", "DEFAULT_MAX_SIDE"]
+
+#: Long side above which source frames are downscaled (intrinsics follow).
+DEFAULT_MAX_SIDE = 960
+
+
+def source_intrinsics(width: int, height: int, focal: float | None = None) -> np.ndarray:
+    """(3, 3) K for a source of the given size; focal from a 60° horizontal FOV by default."""
+    if focal is not None and not (np.isfinite(focal) and focal > 0):
+        raise InputError(f"focal must be a positive number of pixels, got {focal}")
+    f = focal_from_fov(width) if focal is None else float(focal)
+    return np.array([[f, 0, (width - 1) / 2], [0, f, (height - 1) / 2], [0, 0, 1]])
+
+
+def extract(source: str | Path, *, masks: str | Path | None = None, focal: float | None = None,
+            max_side: int = DEFAULT_MAX_SIDE, options: ExtractOptions = ExtractOptions(),
+            reporter: Reporter | None = None) -> SpatPrior:
+    """Source video (file or frame folder) → SpaT prior.
+
+    ``focal`` is in pixels of the original video; it is scaled with the
+    frames when they are downscaled.
+    """
+    reporter = reporter or Reporter(quiet=True)
+    video = read_video(source, max_side=max_side)
+    t, h, w = video.frames.shape[:3]
+    if masks is None:
+        raise InputError("this version needs per-frame masks: pass --masks DIR")
+    mask_stack = read_masks(masks, count=t, size=(w, h))
+    k = source_intrinsics(w, h, None if focal is None else focal * video.scale)
+    with reporter.stage("extracting motion", t) as progress:
+        return extract_prior(video.frames, mask_stack, k, video.fps, options=options, progress=progress)
+
+
+def _camera_for_splats(gaussians: Gaussians, width: int, height: int) -> Camera:
+    """A front view (looking down +z) that frames the splats' bulk at half the image width."""
+    m = gaussians.means.astype(np.float64)
+    c = np.median(m, axis=0)
+    r = float(np.sqrt(np.median(((m - c) ** 2).sum(axis=1))))
+    cam = Camera.from_fov(width, height)
+    dist = 2.0 * r * cam.fx / (0.5 * width) + r
+    return cam.with_pose(np.array([[1, 0, 0, -c[0]], [0, 1, 0, -c[1]], [0, 0, 1, -c[2] + dist], [0, 0, 0, 1.0]]))
+
+
+def load_target(target: str | Path, *, size: tuple[int, int] | None = None,
+                options: LiftOptions = LiftOptions()) -> LiftedTarget:
+    """Target image (RGB/RGBA) or 3DGS ``.ply`` → Gaussians with a reference camera.
+
+    A ``.ply`` is taken as it is and viewed from the front (along +z) at
+    ``size`` (512x512 by default).
+    """
+    path = Path(target)
+    if path.suffix.lower() == ".ply":
+        g = read_ply(path)
+        width, height = size or (512, 512)
+        cam = _camera_for_splats(g, width, height)
+        uv, z = cam.project(g.means)
+        pix = np.clip(np.rint(uv), 0, [width - 1, height - 1]).astype(np.int32)
+        mask = np.zeros((height, width), bool)
+        mask[pix[z > 0, 1], pix[z > 0, 0]] = True
+        return LiftedTarget(g, cam, mask, pix)
+    image = read_image(path)
+    if size is not None and (image.shape[1], image.shape[0]) != tuple(size):
+        image = cv2.resize(image, tuple(size), interpolation=cv2.INTER_AREA)
+    return lift_image(image, options=options)
+
+
+def transfer(prior: SpatPrior, target: LiftedTarget, *, frames: int | None = None, speed: float = 1.0,
+             anchor: str = "centroid") -> Trajectory:
+    """Move the target as the prior's parts move; (T, N, 3) trajectory out."""
+    prior = retime(prior, speed=speed, frames=frames)
+    if prior.num_parts == 1:
+        labels = np.zeros(len(target.gaussians), np.int32)
+    elif "labels" in prior.extras and np.ndim(prior.extras["labels"]) == 2:
+        labels = labels_from_layout(target.pixel_of, target.mask, prior.extras["labels"])
+    else:
+        labels = np.zeros(len(target.gaussians), np.int32)  # no layout stored: move as the largest part
+    return integrate(target.gaussians.means, labels, prior, anchor=anchor)
+
+
+def render_frames(gaussians: Gaussians, trajectory: Trajectory, camera: Camera,
+                  background: tuple[float, float, float] = (1.0, 1.0, 1.0),
+                  progress=None) -> Iterator[np.ndarray]:
+    """Yield (H, W, 3) uint8 frames of the moving Gaussians."""
+    for t in range(trajectory.num_frames):
+        image = render(trajectory.frame(gaussians, t), camera, background).image
+        if progress:
+            progress(t + 1, trajectory.num_frames)
+        yield (np.clip(image, 0, 1) * 255 + 0.5).astype(np.uint8)
+
+
+def render_video(path: str | Path, gaussians: Gaussians, trajectory: Trajectory, camera: Camera, *,
+                 fps: float, background: tuple[float, float, float] = (1.0, 1.0, 1.0),
+                 reporter: Reporter | None = None) -> None:
+    """Render the trajectory and write it (MP4, GIF or a PNG folder, by suffix)."""
+    reporter = reporter or Reporter(quiet=True)
+    with reporter.stage("rendering", trajectory.num_frames) as progress:
+        write_video(path, render_frames(gaussians, trajectory, camera, background, progress), fps)
+
+
+def side_by_side(left: np.ndarray, right: list[np.ndarray] | np.ndarray, *, height: int | None = None) -> Iterator[np.ndarray]:
+    """Yield frames with ``left[t]`` beside ``right[t]``, both scaled to one height.
+
+    The shorter sequence holds its last frame. (T, H, W, 3) uint8 in, frames out.
+    """
+    height = height or max(left[0].shape[0], right[0].shape[0])
+    height -= height % 2
+
+    def fit(img: np.ndarray) -> np.ndarray:
+        w = int(round(img.shape[1] * height / img.shape[0]))
+        return cv2.resize(img, (w + w % 2, height), interpolation=cv2.INTER_AREA)
+
+    for t in range(max(len(left), len(right))):
+        yield np.concatenate([fit(left[min(t, len(left) - 1)]), fit(right[min(t, len(right) - 1)])], axis=1)

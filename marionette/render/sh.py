@@ -1,0 +1,91 @@
+"""Real spherical harmonics of degree 0 to 3, as the reference 3D Gaussian Splatting evaluates them.
+
+Constants, basis order and signs follow ``eval_sh`` (``utils/sh_utils.py``) and
+``computeColorFromSH`` (``cuda_rasterizer/forward.cu``) of Kerbl et al., "3D
+Gaussian Splatting for Real-Time Radiance Field Rendering" (SIGGRAPH 2023):
+``colour = max(SH(dir) + 0.5, 0)`` with ``dir`` the unit vector from the camera
+centre to the Gaussian mean, in world coordinates. Colours are clamped from
+below only, like the reference.
+
+:func:`eval_sh` is the NumPy version; :func:`_eval_sh_one` is its numba twin
+for one Gaussian, used inside the rasterizer.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from ..errors import InputError
+
+__all__ = ["eval_sh"]
+
+SH_C0 = 0.28209479177387814
+SH_C1 = 0.4886025119029199
+SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005,
+         -1.0925484305920792, 0.5462742152960396)
+SH_C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154,
+         -0.4570457994644658, 1.445305721320277, -0.5900435899266435)
+
+
+def _basis(dirs: np.ndarray, c: int) -> np.ndarray:
+    """Unit directions (N, 3) float64 → the first ``c`` basis functions (N, C) float64."""
+    x, y, z = dirs[:, 0], dirs[:, 1], dirs[:, 2]
+    b = [np.full_like(x, SH_C0)]
+    if c > 1:
+        b += [-SH_C1 * y, SH_C1 * z, -SH_C1 * x]
+    if c > 4:
+        xx, yy, zz = x * x, y * y, z * z
+        b += [SH_C2[0] * x * y, SH_C2[1] * y * z, SH_C2[2] * (2 * zz - xx - yy),
+              SH_C2[3] * x * z, SH_C2[4] * (xx - yy)]
+    if c > 9:
+        b += [SH_C3[0] * y * (3 * xx - yy), SH_C3[1] * x * y * z, SH_C3[2] * y * (4 * zz - xx - yy),
+              SH_C3[3] * z * (2 * zz - 3 * xx - 3 * yy), SH_C3[4] * x * (4 * zz - xx - yy),
+              SH_C3[5] * z * (xx - yy), SH_C3[6] * x * (xx - 3 * yy)]
+    return np.stack(b, axis=1)
+
+
+def eval_sh(sh: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+    """View-dependent colours from SH coefficients.
+
+    Parameters
+    ----------
+    sh : ndarray, shape (N, C, 3)
+        Coefficients, ``C = (degree + 1)^2`` in 1, 4, 9, 16.
+    dirs : ndarray, shape (N, 3)
+        Viewing directions (camera centre → Gaussian mean, world frame); they
+        are normalised here.
+
+    Returns
+    -------
+    rgb : ndarray, shape (N, 3) float32
+        ``max(SH(dir) + 0.5, 0)``.
+    """
+    sh = np.asarray(sh, dtype=np.float64)
+    dirs = np.asarray(dirs, dtype=np.float64)
+    if sh.ndim != 3 or sh.shape[2] != 3 or sh.shape[1] not in (1, 4, 9, 16):
+        raise InputError(f"eval_sh: sh must have shape (N, C, 3) with C in 1, 4, 9, 16, got {sh.shape}")
+    if dirs.shape != (sh.shape[0], 3):
+        raise InputError(f"eval_sh: dirs must have shape ({sh.shape[0]}, 3), got {dirs.shape}")
+    unit = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+    rgb = np.einsum("nc,nck->nk", _basis(unit, sh.shape[1]), sh) + 0.5
+    return np.maximum(rgb, 0.0).astype(np.float32)
+
+
+@numba.njit(cache=True)
+def _eval_sh_one(sh: np.ndarray, x: float, y: float, z: float) -> tuple[float, float, float]:
+    """Numba twin of :func:`eval_sh` for one Gaussian: sh (C, 3), unit dir → (r, g, b)."""
+    xx, yy, zz = x * x, y * y, z * z
+    # All 16 basis values as a stack tuple (no allocation); only the first C are used.
+    b = (SH_C0, -SH_C1 * y, SH_C1 * z, -SH_C1 * x,
+         SH_C2[0] * x * y, SH_C2[1] * y * z, SH_C2[2] * (2 * zz - xx - yy),
+         SH_C2[3] * x * z, SH_C2[4] * (xx - yy),
+         SH_C3[0] * y * (3 * xx - yy), SH_C3[1] * x * y * z, SH_C3[2] * y * (4 * zz - xx - yy),
+         SH_C3[3] * z * (2 * zz - 3 * xx - 3 * yy), SH_C3[4] * x * (4 * zz - xx - yy),
+         SH_C3[5] * z * (xx - yy), SH_C3[6] * x * (xx - 3 * yy))
+    r = g = bl = 0.0
+    for i in range(sh.shape[0]):
+        r += b[i] * sh[i, 0]
+        g += b[i] * sh[i, 1]
+        bl += b[i] * sh[i, 2]
+    return max(r + 0.5, 0.0), max(g + 0.5, 0.0), max(bl + 0.5, 0.0)

@@ -1,0 +1,88 @@
+import cv2
+import numpy as np
+import pytest
+
+from marionette.errors import InputError
+from marionette.target.lift import LiftOptions, depth_for_radius, inflate_silhouette, lift_image, object_mask
+
+
+def disc_image(size=96, radius=30, rgba=True):
+    img = np.zeros((size, size, 4 if rgba else 3), np.uint8)
+    if not rgba:
+        img[:] = 255
+    yy, xx = np.mgrid[:size, :size]
+    inside = (xx - size / 2) ** 2 + (yy - size / 2) ** 2 < radius**2
+    img[inside, 0] = (xx[inside] * 2) % 256
+    img[inside, 1] = 80
+    img[inside, 2] = (yy[inside] * 2) % 256
+    if rgba:
+        img[inside, 3] = 255
+    return img, inside
+
+
+def test_mask_from_alpha_and_from_plain_background():
+    img, inside = disc_image()
+    assert np.array_equal(object_mask(img), inside)
+    rgb, inside = disc_image(rgba=False)
+    assert (object_mask(rgb) ^ inside).sum() < 0.02 * inside.sum()
+
+
+def test_transparent_and_busy_targets_are_refused():
+    img, _ = disc_image()
+    img[..., 3] = 0
+    with pytest.raises(InputError, match="fully transparent"):
+        object_mask(img)
+    noise = np.random.default_rng(0).integers(0, 255, (64, 64, 3), dtype=np.uint8)
+    with pytest.raises(InputError, match="alpha"):
+        object_mask(noise)
+
+
+def test_inflation_of_a_disc_is_a_ball():
+    _, inside = disc_image(size=128, radius=40)
+    h = inflate_silhouette(inside)
+    assert h[64, 64] == pytest.approx(40, rel=0.05)
+    # Half-way out the ball profile is sqrt(40^2 - 20^2).
+    assert h[64, 84] == pytest.approx(np.sqrt(40**2 - 20**2), rel=0.05)
+    assert h[~inside].max() == 0
+
+
+def test_lifted_gaussians_project_onto_their_pixels_and_have_unit_radius():
+    img, inside = disc_image()
+    lifted = lift_image(img)
+    uv, z = lifted.camera.project(lifted.gaussians.means)
+    assert np.all(z > 0)
+    assert np.abs(uv - lifted.pixel_of).max() < 1e-3
+    front = lifted.gaussians.means[: inside.sum()]
+    c = front.mean(axis=0)
+    # depth_for_radius sets the in-image RMS radius to 1 world unit.
+    assert np.sqrt(((front[:, :2] - c[:2]) ** 2).sum(axis=1).mean()) == pytest.approx(1.0, rel=0.03)
+    assert np.allclose(lifted.gaussians.rgb[: inside.sum()], img[inside][:, :3] / 255.0, atol=1e-5)
+
+
+def test_stride_and_thickness_options():
+    img, _ = disc_image()
+    full = lift_image(img)
+    coarse = lift_image(img, options=LiftOptions(stride=2))
+    assert len(coarse.gaussians) < 0.4 * len(full.gaussians)
+    thin = lift_image(img, options=LiftOptions(thickness=0.2))
+    depth_span = lambda g: np.ptp(g.means[:, 2])
+    assert depth_span(thin.gaussians) < 0.3 * depth_span(full.gaussians)
+
+
+def test_reference_view_reproduces_the_image():
+    from marionette.render import render
+
+    img, inside = disc_image()
+    img = cv2.GaussianBlur(img, (0, 0), 1.0)  # band-limit so splats can reproduce it
+    img[..., 3] = np.where(inside, 255, 0)
+    lifted = lift_image(img)
+    out = render(lifted.gaussians, lifted.camera, (1.0, 1.0, 1.0)).image
+    ref = img[..., :3] / 255.0
+    inner = cv2.erode(inside.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    mse = ((out[inner] - ref[inner]) ** 2).mean()
+    assert 10 * np.log10(1 / mse) > 30
+
+
+def test_depth_for_radius_scales_with_focal():
+    _, inside = disc_image()
+    assert depth_for_radius(inside, 200.0) == pytest.approx(2 * depth_for_radius(inside, 100.0))
