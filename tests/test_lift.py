@@ -52,10 +52,11 @@ def test_lifted_gaussians_project_onto_their_pixels_and_have_unit_radius():
     uv, z = lifted.camera.project(lifted.gaussians.means)
     assert np.all(z > 0)
     assert np.abs(uv - lifted.pixel_of).max() < 1e-3
-    front = lifted.gaussians.means[: inside.sum()]
-    c = front.mean(axis=0)
-    # depth_for_radius sets the in-image RMS radius to 1 world unit.
-    assert np.sqrt(((front[:, :2] - c[:2]) ** 2).sum(axis=1).mean()) == pytest.approx(1.0, rel=0.03)
+    front = lifted.gaussians.means[: inside.sum()].astype(np.float64)
+    z0 = depth_for_radius(inside, lifted.camera.fx)
+    # depth_for_radius puts the outline at a depth where its RMS radius is 1 world unit.
+    lateral = front[:, :2] * (z0 / front[:, 2:])
+    assert np.sqrt(((lateral - lateral.mean(axis=0)) ** 2).sum(axis=1).mean()) == pytest.approx(1.0, rel=0.03)
     assert np.allclose(lifted.gaussians.rgb[: inside.sum()], img[inside][:, :3] / 255.0, atol=1e-5)
 
 

@@ -1,0 +1,189 @@
+"""Rigid objects made of planar textured faces.
+
+Object-local coordinates follow the camera convention (x right, y down, z
+away from the viewer), so "up" is -y and the front face looks along -z.
+Each face is a rectangle ``origin + s * edge_s + t * edge_t`` with
+``s, t`` in [0, 1] (edges orthogonal), optionally cut to its inscribed disc.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._textures import TEXELS_PER_UNIT, face_texture
+
+#: Spacing in world units of the surface samples returned as ``part_points``.
+POINT_SPACING = 0.05
+
+
+@dataclass(frozen=True)
+class Face:
+    """One planar face.
+
+    Attributes
+    ----------
+    origin, edge_s, edge_t : (3,) float64
+        Corner at ``s = t = 0`` and the two orthogonal edge vectors.
+    normals : (2, 3) float64
+        Outward shading normals at ``s = 0`` and ``s = 1`` (equal on flat
+        faces; they differ on the facets of a smooth cylinder).
+    texture : (Ht, Wt, 3) float32
+        Colours in [0, 1].
+    window : (4,) float64
+        ``s0, s1, t0, t1``: the part of ``texture`` this face shows, so several
+        facets can share one texture.
+    disk : bool
+        Only the disc inscribed in the rectangle is solid (cylinder caps).
+    """
+
+    origin: np.ndarray
+    edge_s: np.ndarray
+    edge_t: np.ndarray
+    normals: np.ndarray
+    texture: np.ndarray
+    window: np.ndarray
+    disk: bool = False
+
+    @property
+    def normal(self) -> np.ndarray:
+        """(3,) outward geometric normal."""
+        n = np.cross(self.edge_s, self.edge_t)
+        n /= np.linalg.norm(n)
+        return n if n @ (self.normals[0] + self.normals[1]) > 0 else -n
+
+    def transformed(self, m: np.ndarray) -> "Face":
+        """The face moved by a rigid transform (4, 4)."""
+        r, t = m[:3, :3], m[:3, 3]
+        return Face(r @ self.origin + t, r @ self.edge_s, r @ self.edge_t, self.normals @ r.T,
+                    self.texture, self.window, self.disk)
+
+    def sample_points(self, spacing: float = POINT_SPACING) -> np.ndarray:
+        """Grid of surface points (M, 3), corners and edges included."""
+        ns = int(np.ceil(np.linalg.norm(self.edge_s) / spacing)) + 1
+        nt = int(np.ceil(np.linalg.norm(self.edge_t) / spacing)) + 1
+        s, t = np.meshgrid(np.linspace(0, 1, ns), np.linspace(0, 1, nt), indexing="ij")
+        s, t = s.ravel(), t.ravel()
+        if self.disk:
+            keep = (2 * s - 1) ** 2 + (2 * t - 1) ** 2 <= 1
+            s, t = s[keep], t[keep]
+        return self.origin + s[:, None] * self.edge_s + t[:, None] * self.edge_t
+
+
+@dataclass(frozen=True)
+class Shape:
+    """An object: parts (part 0 the largest), each a tuple of faces, in object-local coordinates.
+
+    ``hinge`` is ``(point, direction)``, two (3,) arrays: the line about which
+    part 1 turns relative to part 0, with positive angles opening it; None for
+    one-part objects.
+    """
+
+    parts: tuple[tuple[Face, ...], ...]
+    hinge: tuple[np.ndarray, np.ndarray] | None = None
+
+    def transformed(self, m: np.ndarray) -> "Shape":
+        """All parts moved by one rigid transform (4, 4)."""
+        hinge = None
+        if self.hinge is not None:
+            hinge = (m[:3, :3] @ self.hinge[0] + m[:3, 3], m[:3, :3] @ self.hinge[1])
+        return Shape(tuple(tuple(f.transformed(m) for f in part) for part in self.parts), hinge)
+
+    def part_points(self) -> list[np.ndarray]:
+        """Surface samples per part, a list of (M_k, 3) float64."""
+        return [np.concatenate([f.sample_points() for f in part]) for part in self.parts]
+
+    def bounding_radius(self) -> float:
+        """Largest distance of a surface point from the local origin."""
+        return float(max(np.linalg.norm(p, axis=1).max() for p in self.part_points()))
+
+
+def _texture_shape(width: float, height: float) -> tuple[int, int]:
+    return max(int(round(height * TEXELS_PER_UNIT)), 8), max(int(round(width * TEXELS_PER_UNIT)), 8)
+
+
+def _flat_face(origin, edge_s, edge_t, outward, texture) -> Face:
+    n = np.asarray(outward, dtype=np.float64)
+    return Face(np.asarray(origin, dtype=np.float64), np.asarray(edge_s, dtype=np.float64),
+                np.asarray(edge_t, dtype=np.float64), np.stack([n, n]), texture, np.array([0.0, 1.0, 0.0, 1.0]))
+
+
+def _hues(rng: np.random.Generator, count: int, warm: bool) -> np.ndarray:
+    """Distinct hues (count,) in turns: spread over the wheel, or over red-yellow for ``warm``."""
+    spread = (rng.random() + 0.618034 * np.arange(count)) % 1.0
+    return (0.97 + 0.16 * spread) % 1.0 if warm else spread
+
+
+def _box_faces(centre, half, hues, rng: np.random.Generator, saturation: float) -> tuple[Face, ...]:
+    """Six faces of an axis-aligned box; texture ``s`` runs rightwards and ``t`` downwards when seen from outside."""
+    c = np.asarray(centre, dtype=np.float64)
+    a, b, d = half
+    specs = [  # origin offset, edge_s, edge_t, outward normal
+        ((-a, -b, -d), (2 * a, 0, 0), (0, 2 * b, 0), (0, 0, -1)),   # front
+        ((a, -b, d), (-2 * a, 0, 0), (0, 2 * b, 0), (0, 0, 1)),     # back
+        ((-a, -b, d), (0, 0, -2 * d), (0, 2 * b, 0), (-1, 0, 0)),   # left
+        ((a, -b, -d), (0, 0, 2 * d), (0, 2 * b, 0), (1, 0, 0)),     # right
+        ((-a, -b, d), (2 * a, 0, 0), (0, 0, -2 * d), (0, -1, 0)),   # top
+        ((-a, b, -d), (2 * a, 0, 0), (0, 0, 2 * d), (0, 1, 0)),     # bottom
+    ]
+    faces = []
+    for (off, es, et, n), hue in zip(specs, hues):
+        tex = face_texture(rng, _texture_shape(np.linalg.norm(es), np.linalg.norm(et)), hue,
+                           saturation=saturation * rng.uniform(0.85, 1.15))
+        faces.append(_flat_face(c + off, es, et, n, tex))
+    return tuple(faces)
+
+
+def make_box(geom: np.random.Generator, tex: np.random.Generator, warm: bool = False) -> Shape:
+    """A box about 1.7 x 1.05 x 1.05 units (size varies with ``geom``), centred at the origin."""
+    half = 0.5 * np.array([geom.uniform(1.5, 1.9), geom.uniform(0.9, 1.2), geom.uniform(0.9, 1.2)])
+    sat = 0.75 if warm else 0.55
+    return Shape((_box_faces(np.zeros(3), half, _hues(tex, 6, warm), tex, sat),))
+
+
+def make_hinged_box(geom: np.random.Generator, tex: np.random.Generator, warm: bool = False) -> Shape:
+    """A body box with a thin lid on top, hinged along the lid's bottom back edge.
+
+    Part 0 is the body, part 1 the lid; both have the same footprint. The
+    local origin is the centre of the closed object's bounding box. Positive
+    hinge angles lift the lid's front edge.
+    """
+    w, h, d = geom.uniform(1.5, 1.8), geom.uniform(0.75, 0.95), geom.uniform(1.0, 1.2)
+    lid = geom.uniform(0.12, 0.16)
+    shift = np.array([0.0, lid / 2, 0.0])  # centre the closed object on the origin
+    hues = _hues(tex, 12, warm)
+    sat = 0.75 if warm else 0.55
+    body = _box_faces(shift, (w / 2, h / 2, d / 2), hues[:6], tex, sat)
+    lid_faces = _box_faces(shift + [0.0, -(h + lid) / 2, 0.0], (w / 2, lid / 2, d / 2), hues[6:], tex, sat)
+    # Rotating by -angle about +x lifts the front (-z) edge, so the axis points along -x.
+    hinge_point = shift + np.array([0.0, -h / 2, d / 2])
+    return Shape((body, lid_faces), (hinge_point, np.array([-1.0, 0.0, 0.0])))
+
+
+def make_cylinder(geom: np.random.Generator, tex: np.random.Generator, warm: bool = True,
+                  facets: int = 48) -> Shape:
+    """An upright can: ``facets`` side facets with smooth shading, plus disc caps.
+
+    The side texture wraps once around, its seam at the back (+z).
+    """
+    r, height = geom.uniform(0.55, 0.65), geom.uniform(1.4, 1.7)
+    hues = _hues(tex, 3, warm)
+    side_tex = face_texture(tex, _texture_shape(2 * np.pi * r, height), hues[0], saturation=0.7)
+    # Angle 0 faces the viewer (-z); the seam sits at ±π.
+    phi = np.linspace(-np.pi, np.pi, facets + 1)
+    rim = np.stack([r * np.sin(phi), np.full_like(phi, -height / 2), -r * np.cos(phi)], axis=1)
+    normals = np.stack([np.sin(phi), np.zeros_like(phi), -np.cos(phi)], axis=1)
+    side = tuple(
+        Face(rim[i], rim[i + 1] - rim[i], np.array([0.0, height, 0.0]), normals[i:i + 2], side_tex,
+             np.array([i / facets, (i + 1) / facets, 0.0, 1.0]))
+        for i in range(facets)
+    )
+    caps = []
+    for y, hue in ((-height / 2, hues[1]), (height / 2, hues[2])):
+        cap_tex = face_texture(tex, _texture_shape(2 * r, 2 * r), hue, saturation=0.7)
+        n = np.array([0.0, np.sign(y), 0.0])
+        caps.append(Face(np.array([-r, y, r * np.sign(y)]), np.array([2 * r, 0.0, 0.0]),
+                         np.array([0.0, 0.0, -2 * r * np.sign(y)]), np.stack([n, n]), cap_tex,
+                         np.array([0.0, 1.0, 0.0, 1.0]), disk=True))
+    return Shape((side + tuple(caps),))

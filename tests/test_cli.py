@@ -1,0 +1,142 @@
+"""Command line: contract behaviour, errors as one line with exit code 2, no partial outputs."""
+
+import json
+import subprocess
+import sys
+
+import cv2
+import numpy as np
+import pytest
+
+from marionette.camera import Camera
+from marionette.cli import main
+from marionette.gaussians import Gaussians
+from marionette.geometry import axis_angle_to_matrix, make_transform
+from marionette.io import read_ply, read_prior, read_video, write_ply, write_prior
+from marionette.prior import SpatPrior
+
+
+def one_error_line(capsys):
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: "), err
+    return err[0]
+
+
+@pytest.fixture
+def prior_file(tmp_path):
+    t = 8
+    c = np.array([0, 0, 4.0])
+    poses = [make_transform(axis_angle_to_matrix([0, 0, 0.1 * i]), [0, 0, 0]) for i in range(t)]
+    poses = np.array([make_transform(np.eye(3), c) @ p @ make_transform(np.eye(3), -c) for p in poses])[None]
+    prior = SpatPrior.from_poses(poses, np.tile(c, (1, t, 1)), np.ones(1), fps=12.0, image_size=(64, 48),
+                                 intrinsics=np.eye(3))
+    path = tmp_path / "prior.npz"
+    write_prior(path, prior)
+    return path
+
+
+@pytest.fixture
+def target_png(tmp_path):
+    img = np.zeros((64, 64, 4), np.uint8)
+    cv2.rectangle(img, (16, 20), (48, 44), (30, 120, 230, 255), -1)
+    cv2.circle(img, (32, 32), 6, (250, 250, 20, 255), -1)
+    path = tmp_path / "target.png"
+    cv2.imwrite(str(path), cv2.cvtColor(img, cv2.COLOR_RGBA2BGRA))
+    return path
+
+
+def test_transfer_writes_a_video_of_the_right_length(tmp_path, prior_file, target_png):
+    out = tmp_path / "out.mp4"
+    assert main(["transfer", str(prior_file), str(target_png), "-o", str(out), "--quiet"]) == 0
+    video = read_video(out)
+    assert video.frames.shape[:3] == (8, 64, 64) and video.fps == pytest.approx(12.0)
+    # The square turns in the image plane: the last frame differs from the first.
+    assert np.abs(video.frames[-1].astype(int) - video.frames[0]).mean() > 2
+
+
+def test_transfer_speed_and_frames(tmp_path, prior_file, target_png):
+    out = tmp_path / "out.gif"
+    assert main(["transfer", str(prior_file), str(target_png), "-o", str(out), "--speed", "0.5",
+                 "--frames", "5", "--fps", "5", "-q"]) == 0
+    assert read_video(out).frames.shape[0] == 5
+
+
+def test_render_command(tmp_path):
+    g = Gaussians.from_rgb(np.array([[0.0, 0.0, 3.0]]), np.array([[1.0, 0.0, 0.0]]), np.array([0.3]), 0.99)
+    write_ply(tmp_path / "scene.ply", g)
+    cam = Camera.from_fov(40, 30)
+    (tmp_path / "cam.json").write_text(json.dumps(cam.to_dict()))
+    out = tmp_path / "img.png"
+    assert main(["render", str(tmp_path / "scene.ply"), "--camera", str(tmp_path / "cam.json"),
+                 "-o", str(out), "--background", "0,0,0"]) == 0
+    img = cv2.imread(str(out))[..., ::-1]
+    assert img.shape == (30, 40, 3)
+    assert tuple(img[15, 20]) == pytest.approx((255, 0, 0), abs=40) and tuple(img[0, 0]) == (0, 0, 0)
+
+
+@pytest.mark.parametrize("args, words", [
+    (["transfer", "{prior}", "{target}", "-o", "{out}", "--speed", "0"], "--speed"),
+    (["transfer", "{prior}", "{target}", "-o", "{out}", "--frames", "-3"], "--frames"),
+    (["transfer", "{prior}", "{target}", "-o", "{tmp}/x.avi"], "unsupported video output"),
+    (["transfer", "{prior}", "{target}", "-o", "{tmp}/missing/out.mp4"], "does not exist"),
+    (["transfer", "{tmp}/nope.npz", "{target}", "-o", "{out}"], "does not exist"),
+    (["transfer", "{target}", "{target}", "-o", "{out}"], "not a readable .npz"),
+    (["transfer", "{prior}", "{tmp}/nope.png", "-o", "{out}"], "nope.png"),
+    (["transfer", "{prior}", "{target}", "-o", "{out}", "--background", "red"], "--background"),
+    (["extract", "{tmp}/novideo.mp4", "-o", "{tmp}/p.npz"], "novideo.mp4"),
+    (["extract", "{target}", "-o", "{tmp}/p.npz", "--parts", "zero"], "--parts"),
+    (["render", "{tmp}/none.ply", "--camera", "{tmp}/none.json", "-o", "{tmp}/i.png"], "none.json"),
+    (["transfer", "{prior}"], "Missing"),
+    (["frobnicate"], "No such command"),
+])
+def test_bad_input_is_one_error_line_and_exit_2(tmp_path, capsys, prior_file, target_png, args, words):
+    fill = {"prior": prior_file, "target": target_png, "out": tmp_path / "out.mp4", "tmp": tmp_path}
+    code = main([a.format(**fill) for a in args])
+    line = one_error_line(capsys)
+    assert code == 2 and words in line
+    assert not (tmp_path / "out.mp4").exists() and not (tmp_path / "p.npz").exists()
+    assert not list(tmp_path.glob(".*tmp*"))
+
+
+def test_existing_output_survives_a_failed_run(tmp_path, capsys, prior_file):
+    out = tmp_path / "out.mp4"
+    out.write_bytes(b"precious")
+    transparent = tmp_path / "clear.png"
+    cv2.imwrite(str(transparent), np.zeros((32, 32, 4), np.uint8))
+    assert main(["transfer", str(prior_file), str(transparent), "-o", str(out)]) == 2
+    assert "transparent" in one_error_line(capsys)
+    assert out.read_bytes() == b"precious"
+
+
+def test_installed_entry_point_prints_no_traceback(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "marionette", "transfer", str(tmp_path / "a.npz"),
+                           str(tmp_path / "b.png"), "-o", str(tmp_path / "c.mp4")], capture_output=True, text=True)
+    assert proc.returncode == 2
+    assert proc.stderr.startswith("error: ") and "Traceback" not in proc.stderr
+
+
+def test_extract_and_run_on_a_synthetic_video(tmp_path, target_png):
+    from marionette.io import write_video
+    from marionette.synthetic import make_scene
+
+    scene = make_scene("inplane", num_frames=10, size=(160, 120), seed=1)
+    frames, masks = tmp_path / "frames", tmp_path / "masks"
+    write_video(frames, scene.frames, scene.fps)
+    masks.mkdir()
+    for i, m in enumerate(scene.masks):
+        cv2.imwrite(str(masks / f"{i:05d}.png"), m.astype(np.uint8) * 255)
+    assert main(["extract", str(frames), "--masks", str(masks), "-o", str(tmp_path / "p.npz"), "-q"]) == 0
+    prior = read_prior(tmp_path / "p.npz")
+    assert prior.num_frames == 10 and prior.num_parts == 1
+    assert main(["run", str(frames), str(target_png), "--masks", str(masks), "-o", str(tmp_path / "r.mp4"),
+                 "-q"]) == 0
+    assert read_video(tmp_path / "r.mp4").frames.shape[0] == 10
+
+
+def test_demo_writes_its_videos(tmp_path):
+    out = tmp_path / "demo"
+    assert main(["demo", "-o", str(out), "--quiet"]) == 0
+    for name in ("source.mp4", "result.mp4", "side_by_side.mp4", "prior.npz", "target.png"):
+        assert (out / name).stat().st_size > 0, name
+    result = read_video(out / "result.mp4")
+    assert result.frames.shape[0] == read_video(out / "source.mp4").frames.shape[0]
