@@ -1,1 +1,11 @@
 """Reading and writing: 3DGS .ply, SpaT prior .npz, videos, images and masks."""
+
+from .ply import read_ply, write_ply
+from .prior import read_prior, write_prior
+from .video import Video, read_image, read_masks, read_video, write_image, write_video
+
+__all__ = [
+    "read_ply", "write_ply",
+    "read_prior", "write_prior",
+    "Video", "read_video", "read_masks", "read_image", "write_video", "write_image",
+]

@@ -109,13 +109,13 @@ def _flat_face(origin, edge_s, edge_t, outward, texture) -> Face:
                 np.asarray(edge_t, dtype=np.float64), np.stack([n, n]), texture, np.array([0.0, 1.0, 0.0, 1.0]))
 
 
-def _hues(rng: np.random.Generator, count: int, warm: bool) -> np.ndarray:
-    """Distinct hues (count,) in turns: spread over the wheel, or over red-yellow for ``warm``."""
+def _hues(rng: np.random.Generator, count: int, target: bool) -> np.ndarray:
+    """Distinct hues (count,) in turns: spread over the wheel, or over red-yellow for the target look."""
     spread = (rng.random() + 0.618034 * np.arange(count)) % 1.0
-    return (0.97 + 0.16 * spread) % 1.0 if warm else spread
+    return (0.96 + 0.14 * spread) % 1.0 if target else spread
 
 
-def _box_faces(centre, half, hues, rng: np.random.Generator, saturation: float) -> tuple[Face, ...]:
+def _box_faces(centre, half, hues, rng: np.random.Generator, target: bool) -> tuple[Face, ...]:
     """Six faces of an axis-aligned box; texture ``s`` runs rightwards and ``t`` downwards when seen from outside."""
     c = np.asarray(centre, dtype=np.float64)
     a, b, d = half
@@ -130,19 +130,24 @@ def _box_faces(centre, half, hues, rng: np.random.Generator, saturation: float) 
     faces = []
     for (off, es, et, n), hue in zip(specs, hues):
         tex = face_texture(rng, _texture_shape(np.linalg.norm(es), np.linalg.norm(et)), hue,
-                           saturation=saturation * rng.uniform(0.85, 1.15))
+                           saturation=(0.7 if target else 0.55) * rng.uniform(0.85, 1.15),
+                           value=0.95 if target else rng.uniform(0.7, 0.95), checker=target)
         faces.append(_flat_face(c + off, es, et, n, tex))
     return tuple(faces)
 
 
-def make_box(geom: np.random.Generator, tex: np.random.Generator, warm: bool = False) -> Shape:
-    """A box about 1.7 x 1.05 x 1.05 units (size varies with ``geom``), centred at the origin."""
+def make_box(geom: np.random.Generator, tex: np.random.Generator, target: bool = False) -> Shape:
+    """A box about 1.7 x 1.05 x 1.05 units (size varies with ``geom``), centred at the origin.
+
+    ``geom`` draws the size, ``tex`` the textures; ``target`` selects the look
+    of target images (warm hues, checker cells) over the source look (hues
+    all round the wheel, blobs).
+    """
     half = 0.5 * np.array([geom.uniform(1.5, 1.9), geom.uniform(0.9, 1.2), geom.uniform(0.9, 1.2)])
-    sat = 0.75 if warm else 0.55
-    return Shape((_box_faces(np.zeros(3), half, _hues(tex, 6, warm), tex, sat),))
+    return Shape((_box_faces(np.zeros(3), half, _hues(tex, 6, target), tex, target),))
 
 
-def make_hinged_box(geom: np.random.Generator, tex: np.random.Generator, warm: bool = False) -> Shape:
+def make_hinged_box(geom: np.random.Generator, tex: np.random.Generator, target: bool = False) -> Shape:
     """A body box with a thin lid on top, hinged along the lid's bottom back edge.
 
     Part 0 is the body, part 1 the lid; both have the same footprint. The
@@ -152,24 +157,24 @@ def make_hinged_box(geom: np.random.Generator, tex: np.random.Generator, warm: b
     w, h, d = geom.uniform(1.5, 1.8), geom.uniform(0.75, 0.95), geom.uniform(1.0, 1.2)
     lid = geom.uniform(0.12, 0.16)
     shift = np.array([0.0, lid / 2, 0.0])  # centre the closed object on the origin
-    hues = _hues(tex, 12, warm)
-    sat = 0.75 if warm else 0.55
-    body = _box_faces(shift, (w / 2, h / 2, d / 2), hues[:6], tex, sat)
-    lid_faces = _box_faces(shift + [0.0, -(h + lid) / 2, 0.0], (w / 2, lid / 2, d / 2), hues[6:], tex, sat)
+    hues = _hues(tex, 12, target)
+    body = _box_faces(shift, (w / 2, h / 2, d / 2), hues[:6], tex, target)
+    lid_faces = _box_faces(shift + [0.0, -(h + lid) / 2, 0.0], (w / 2, lid / 2, d / 2), hues[6:], tex, target)
     # Rotating by -angle about +x lifts the front (-z) edge, so the axis points along -x.
     hinge_point = shift + np.array([0.0, -h / 2, d / 2])
     return Shape((body, lid_faces), (hinge_point, np.array([-1.0, 0.0, 0.0])))
 
 
-def make_cylinder(geom: np.random.Generator, tex: np.random.Generator, warm: bool = True,
+def make_cylinder(geom: np.random.Generator, tex: np.random.Generator, target: bool = True,
                   facets: int = 48) -> Shape:
-    """An upright can: ``facets`` side facets with smooth shading, plus disc caps.
+    """A squat upright can: ``facets`` side facets with smooth shading, plus disc caps.
 
     The side texture wraps once around, its seam at the back (+z).
     """
-    r, height = geom.uniform(0.55, 0.65), geom.uniform(1.4, 1.7)
-    hues = _hues(tex, 3, warm)
-    side_tex = face_texture(tex, _texture_shape(2 * np.pi * r, height), hues[0], saturation=0.7)
+    r, height = geom.uniform(0.55, 0.65), geom.uniform(1.0, 1.2)
+    hues = _hues(tex, 3, target)
+    side_tex = face_texture(tex, _texture_shape(2 * np.pi * r, height), hues[0], saturation=0.7, value=0.95,
+                            checker=target)
     # Angle 0 faces the viewer (-z); the seam sits at ±π.
     phi = np.linspace(-np.pi, np.pi, facets + 1)
     rim = np.stack([r * np.sin(phi), np.full_like(phi, -height / 2), -r * np.cos(phi)], axis=1)
@@ -181,7 +186,7 @@ def make_cylinder(geom: np.random.Generator, tex: np.random.Generator, warm: boo
     )
     caps = []
     for y, hue in ((-height / 2, hues[1]), (height / 2, hues[2])):
-        cap_tex = face_texture(tex, _texture_shape(2 * r, 2 * r), hue, saturation=0.7)
+        cap_tex = face_texture(tex, _texture_shape(2 * r, 2 * r), hue, saturation=0.7, value=0.95, checker=target)
         n = np.array([0.0, np.sign(y), 0.0])
         caps.append(Face(np.array([-r, y, r * np.sign(y)]), np.array([2 * r, 0.0, 0.0]),
                          np.array([0.0, 0.0, -2 * r * np.sign(y)]), np.stack([n, n]), cap_tex,

@@ -43,27 +43,37 @@ def hsv_to_rgb(h: np.ndarray, s: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 
 def face_texture(rng: np.random.Generator, shape: tuple[int, int], hue: float,
-                 saturation: float = 0.55, value: float = 0.85) -> np.ndarray:
+                 saturation: float = 0.55, value: float = 0.85, checker: bool = False) -> np.ndarray:
     """A trackable texture (Ht, Wt, 3) float32 in [0, 1] around one base hue.
 
-    Brightness follows four noise octaves (64 to 8 texels), hue and saturation
-    drift slowly, and a sprinkle of light and dark blobs adds corners.
+    Brightness follows four noise octaves (64 to 8 texels) of similar weight,
+    so there is contrast at every scale a tracker's window sees; hue and
+    saturation drift slowly. On top, either a sprinkle of light and dark blobs
+    (corners for the tracker) or, with ``checker``, 20-texel cells of varied
+    hue and brightness (a different look, for target images).
     """
-    lum = fractal_noise(rng, shape, (64, 32, 16, 8), (0.45, 0.3, 0.2, 0.12))
+    lum = fractal_noise(rng, shape, (64, 32, 16, 8), (0.3, 0.3, 0.3, 0.25))
     drift = fractal_noise(rng, shape, (48, 24), (1.0, 0.5))
     sat_drift = fractal_noise(rng, shape, (40,), (1.0,))
-    v = value * (0.68 + 0.2 * lum)
-    # Blobs: discs of 2-7 texels, about one per 18x18 texels, blurred to stay band-limited.
-    blobs = np.zeros(shape, np.float32)
-    n = max(1, shape[0] * shape[1] // 330)
-    centres = rng.random((n, 2)) * [shape[1], shape[0]]
-    radii = rng.uniform(2.0, 7.0, n)
-    signs = rng.choice([-1.0, 1.0], n)
-    for (x, y), r, sign in zip(centres, radii, signs):
-        cv2.circle(blobs, (int(x * 16), int(y * 16)), int(r * 16), float(sign), -1, cv2.LINE_AA, shift=4)
-    blobs = cv2.GaussianBlur(blobs, (0, 0), 0.8)
-    v = v * (1.0 + 0.3 * blobs)
-    rgb = hsv_to_rgb(hue + 0.04 * drift, saturation * (1.0 + 0.3 * sat_drift), v)
+    if checker:
+        cell = 20
+        cells = rng.random((shape[0] // cell + 1, shape[1] // cell + 1, 2)).astype(np.float32)
+        cells = np.repeat(np.repeat(cells, cell, axis=0), cell, axis=1)[:shape[0], :shape[1]]
+        cells = cv2.GaussianBlur(cells, (0, 0), 0.8)  # soft cell edges: no aliasing
+        v = value * (0.72 + 0.05 * lum + 0.3 * cells[..., 0])
+        drift = 0.5 * drift + 3.0 * (cells[..., 1] - 0.5)
+    else:
+        v = value * (0.7 + 0.17 * lum)
+        # Discs of 1.5-5 texels, about one per 14x14 texels, blurred to stay band-limited.
+        blobs = np.zeros(shape, np.float32)
+        n = max(1, shape[0] * shape[1] // 200)
+        centres = rng.random((n, 2)) * [shape[1], shape[0]]
+        radii = rng.uniform(1.5, 5.0, n)
+        signs = rng.choice([-1.0, 1.0], n)
+        for (x, y), r, sign in zip(centres, radii, signs):
+            cv2.circle(blobs, (int(x * 16), int(y * 16)), int(r * 16), float(sign), -1, cv2.LINE_AA, shift=4)
+        v = v * (1.0 + 0.3 * cv2.GaussianBlur(blobs, (0, 0), 0.8))
+    rgb = hsv_to_rgb(hue + 0.025 * drift, saturation * (1.0 + 0.3 * sat_drift), v)
     return np.clip(rgb, 0.0, 1.0)
 
 
@@ -81,4 +91,4 @@ def background_texture(rng: np.random.Generator, shape: tuple[int, int]) -> np.n
     hue = rng.random()
     base = rng.uniform(0.6, 0.72)
     return hsv_to_rgb(np.full(shape, hue, np.float32) + 0.05 * tint,
-                      np.full(shape, 0.12, np.float32), base * (1.0 + 0.08 * lum))
+                      np.full(shape, 0.08, np.float32), base * (1.0 + 0.08 * lum))

@@ -1,0 +1,59 @@
+"""Make the README's picture: a real clip's motion transferred onto a real photo.
+
+Needs ``../shared/data`` (DAVIS car-turn and the RealFusion teapot). Writes
+``docs/images/readme_result.png``: source frames (top) over result frames
+(bottom) at five moments.
+
+    python benchmarks/readme_figure.py [--source car-turn] [--target teapot]
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from marionette import pipeline
+from marionette.io import read_video, write_image
+from marionette.progress import Reporter
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+OUT = Path(__file__).resolve().parents[1] / "docs" / "images" / "readme_result.png"
+
+
+def contact_sheet(rows: list[list[np.ndarray]], height: int = 180, pad: int = 4) -> np.ndarray:
+    """Rows of (H, W, 3) uint8 images → one sheet, each image scaled to ``height``."""
+    lines = []
+    for row in rows:
+        tiles = [cv2.resize(im, (int(im.shape[1] * height / im.shape[0]), height), interpolation=cv2.INTER_AREA)
+                 for im in row]
+        tiles = [np.pad(t, ((pad, pad), (pad, pad), (0, 0)), constant_values=255) for t in tiles]
+        lines.append(np.concatenate(tiles, axis=1))
+    width = max(line.shape[1] for line in lines)
+    lines = [np.pad(line, ((0, 0), (0, width - line.shape[1]), (0, 0)), constant_values=255) for line in lines]
+    return np.concatenate(lines, axis=0)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--source", default="davis_car-turn")
+    parser.add_argument("--target", default="realfusion15_colorful_teapot/image_rgba.png")
+    parser.add_argument("--output", type=Path, default=OUT)
+    args = parser.parse_args()
+    src = DATA / "videos" / args.source
+    reporter = Reporter()
+    prior = pipeline.extract(src / "frames", masks=src / "masks", reporter=reporter)
+    target = pipeline.load_target(DATA / "images" / args.target)
+    trajectory = pipeline.transfer(prior, target)
+    frames = list(pipeline.render_frames(target.gaussians, trajectory, target.camera))
+    source = read_video(src / "frames").frames
+    picks = np.linspace(0, len(frames) - 1, 5).round().astype(int)
+    sheet = contact_sheet([[source[i] for i in picks], [frames[i] for i in picks]])
+    write_image(args.output, sheet)
+    print(f"wrote {args.output}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,530 @@
+"""Per-frame rigid pose of one rigid body from its 2D tracks.
+
+Motion Marionette (Sec. 3, Eq. 1) lifts 2D tracks to 3D with learned metric
+depth and bundle-adjusted cameras (MoSca), then fits per-step rigid
+transforms with Umeyama's method (Eq. 3-4). Without a depth network we use
+the rigidity itself, the classical structure-from-motion route:
+
+1. **Shape prior.** The monocular scale is unknowable, so we fix it: the
+   object's frame-0 shape is a rounded volume inflated from its mask
+   (:meth:`ShapePrior.inflate`), placed at the depth where its RMS radius is
+   exactly 1 unit. The volume is as thick as the mask is wide at its widest
+   inscribed disc (a disc mask gives a sphere): for a rigid object seen once,
+   "about as deep as it is wide" is the least committal guess, and a rounded
+   front surface, unlike a flat plane, keeps PnP well posed under
+   out-of-plane rotation.
+2. **Sequential PnP.** Tracks alive at frame 0 are lifted onto the volume's
+   front surface. At each frame t the pose follows from the lifted tracks
+   visible at t by RANSAC PnP (``cv2.solvePnPRansac``, started from the pose
+   at t-1) and Levenberg–Marquardt refinement on the inliers
+   (``cv2.solvePnPRefineLM``). Tracks first seen at t (re-seeded on surface
+   that turned into view) are then lifted by casting their pixel ray into
+   the volume moved by the pose at t, so they carry the pose once the
+   frame-0 surface has turned away.
+3. **Joint refinement.** A sparse bundle adjustment (Triggs et al., "Bundle
+   adjustment — a modern synthesis", 1999) over all poses and a subset of the
+   3D points, with a Huber loss and a weak prior keeping each point's depth
+   near its lifted value (this also fixes the scale gauge). Where the object
+   turns out of plane, parallax corrects the guessed shape and the poses with
+   it; where it does not (translation, in-plane rotation) the shape stays
+   the prior's and is irrelevant to the motion anyway.
+
+Frames where the pose cannot be estimated (fewer than ``min_points`` tracks
+or inliers) are expected outcomes, not errors: they are interpolated between
+the nearest good frames (held after the last one) and reported with a reason
+in ``RigidFit.failed_frames``.
+
+Poses map points of the body at frame 0, expressed in the camera frame of
+frame 0, to the camera frame of frame t (``X_t = R X_0 + t``); with a static
+camera this is the SpaT prior's world frame.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+import scipy.linalg
+from scipy.spatial import cKDTree
+
+from ..geometry import (axis_angle_to_matrix, invert_transform, make_transform, matrix_to_axis_angle,
+                        se3_interpolate, transform_points)
+from .tracks import Tracks
+
+__all__ = ["ShapePrior", "RigidOptions", "RigidFit", "fit_rigid"]
+
+# Ray-casting: samples along each ray through the volume's depth range, then
+# bisection steps on the first entry (each halves a step of ~3 % of the radius).
+_RAY_SAMPLES = 64
+_RAY_BISECTIONS = 16
+
+
+def _bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Sample ``image`` (H, W) bilinearly at pixels ``uv`` (N, 2) → (N,); NaN outside or next to NaN."""
+    h, w = image.shape
+    u, v = uv[:, 0], uv[:, 1]
+    inside = (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
+    u, v = np.where(inside, u, 0.0), np.where(inside, v, 0.0)
+    i0 = np.minimum(np.floor(v).astype(np.int64), h - 2)
+    j0 = np.minimum(np.floor(u).astype(np.int64), w - 2)
+    a, b = v - i0, u - j0
+    out = ((1 - a) * ((1 - b) * image[i0, j0] + b * image[i0, j0 + 1])
+           + a * ((1 - b) * image[i0 + 1, j0] + b * image[i0 + 1, j0 + 1]))
+    return np.where(inside, out, np.nan)
+
+
+def _rays(k: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Pixels (N, 2) → camera rays (N, 3) with z = 1."""
+    return np.column_stack([(uv[:, 0] - k[0, 2]) / k[0, 0], (uv[:, 1] - k[1, 2]) / k[1, 1], np.ones(len(uv))])
+
+
+def _project(k: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Camera points (N, 3) → pixels (N, 2)."""
+    z = points[:, 2:3]
+    return points[:, :2] / z * [k[0, 0], k[1, 1]] + [k[0, 2], k[1, 2]]
+
+
+@dataclass(frozen=True)
+class ShapePrior:
+    """A body's frame-0 volume: every pixel ray of its mask, between a front and a back depth.
+
+    Attributes
+    ----------
+    K : (3, 3) float64
+        Intrinsics of frame 0.
+    front, back : (H, W) float64
+        Camera depth (z) where each pixel's ray enters and leaves the body at
+        frame 0; NaN outside the mask.
+    centroid : (3,) float64
+        Centroid of the volume (camera frame 0).
+    radius : float
+        RMS distance of the front and back surface points of all mask pixels
+        to ``centroid``.
+    extent : float
+        Largest distance of those points to ``centroid`` (bounds ray casting).
+    """
+
+    K: np.ndarray
+    front: np.ndarray
+    back: np.ndarray
+    centroid: np.ndarray
+    radius: float
+    extent: float
+
+    @staticmethod
+    def from_depths(front: np.ndarray, back: np.ndarray, K: np.ndarray) -> "ShapePrior":
+        """The volume between two depth maps (H, W) (NaN outside), e.g. a given depth and a thickness.
+
+        Each mask pixel contributes the frustum column ``front <= z <= back``,
+        of volume ∝ ``back³ - front³`` and centroid depth
+        ``3/4 (back⁴ - front⁴) / (back³ - front³)`` along its ray.
+        """
+        front = np.asarray(front, dtype=np.float64)
+        back = np.asarray(back, dtype=np.float64)
+        k = np.asarray(K, dtype=np.float64)
+        if front.shape != back.shape or front.ndim != 2:
+            raise ValueError(f"ShapePrior: front and back must be equal (H, W) maps, got {front.shape}, {back.shape}")
+        inside = np.isfinite(front) & np.isfinite(back)
+        if not inside.any() or np.any(front[inside] <= 0) or np.any(back[inside] < front[inside]):
+            raise ValueError("ShapePrior: needs pixels with 0 < front <= back")
+        v, u = np.nonzero(inside)
+        rays = _rays(k, np.column_stack([u, v]).astype(np.float64))
+        zf, zb = front[inside], back[inside]
+        vol = zb**3 - zf**3
+        zc = np.where(vol > 0, 0.75 * (zb**4 - zf**4) / np.where(vol > 0, vol, 1.0), zf)
+        weight = np.where(vol > 0, vol, 1e-12 * zf**3)
+        centroid = (weight * zc) @ rays / weight.sum()
+        surface = np.concatenate([rays * zf[:, None], rays * zb[:, None]])
+        dist = np.linalg.norm(surface - centroid, axis=1)
+        front, back = np.where(inside, front, np.nan), np.where(inside, back, np.nan)
+        return ShapePrior(k, front, back, centroid, float(np.sqrt(np.mean(dist**2))), float(dist.max()))
+
+    @staticmethod
+    def inflate(mask: np.ndarray, K: np.ndarray, *, relief: float = 1.0, radius: float = 1.0) -> "ShapePrior":
+        """Silhouette inflation of a frame-0 mask (H, W) bool, scaled to a given RMS radius.
+
+        With ``d`` the distance (pixels) of a mask pixel to the background and
+        ``D`` its maximum, the half-thickness is ``relief * sqrt(d (2D - d))``
+        pixels, an ellipsoidal cap: for a disc of radius ``D`` it is
+        ``sqrt(D² - r²)``, a sphere when ``relief = 1``. At mid-depth ``z0``
+        a pixel spans ``z0 / f`` units, so ``front, back = z0 (1 ∓ h / f)``;
+        ``z0`` is set so that the volume's RMS radius equals ``radius`` (the
+        monocular scale is unknowable; this fixes it).
+        """
+        mask = np.asarray(mask, dtype=bool)
+        k = np.asarray(K, dtype=np.float64)
+        d = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, 5).astype(np.float64)
+        h = relief * np.sqrt(d * (2 * d.max() - d)) / np.sqrt(k[0, 0] * k[1, 1])
+        # Keep the front in front of the camera even for huge masks or relief.
+        h = np.minimum(h, 0.9)
+        unit = ShapePrior.from_depths(np.where(mask, 1 - h, np.nan), np.where(mask, 1 + h, np.nan), k)
+        z0 = radius / unit.radius
+        return ShapePrior.from_depths(unit.front * z0, unit.back * z0, k)
+
+    def raycast(self, uv: np.ndarray, pose: np.ndarray) -> np.ndarray:
+        """Lift pixels of a frame where the body has moved by ``pose`` onto its surface.
+
+        Parameters
+        ----------
+        uv : (N, 2) pixels at that frame.
+        pose : (4, 4) body pose at that frame (frame 0 → that frame).
+
+        Returns
+        -------
+        (N, 3) float64
+            The first point where each pixel's ray enters the moved volume,
+            in body (frame-0 camera) coordinates; NaN where the ray misses.
+        """
+        n = len(uv)
+        inv = invert_transform(pose)
+        centre = transform_points(pose, self.centroid[None])[0]
+        near = max(centre[2] - 1.05 * self.extent, 1e-3 * self.extent)
+        far = centre[2] + 1.05 * self.extent
+        lam = np.linspace(near, far, _RAY_SAMPLES)  # camera depth along each ray (rays have z = 1)
+        rays = _rays(self.K, np.asarray(uv, dtype=np.float64))
+
+        def inside(depth: np.ndarray, which: np.ndarray) -> np.ndarray:
+            body = transform_points(inv, rays[which] * depth[:, None])
+            p = _project(self.K, body)
+            return (body[:, 2] >= _bilinear(self.front, p)) & (body[:, 2] <= _bilinear(self.back, p))
+
+        rows = np.repeat(np.arange(n), _RAY_SAMPLES)
+        hits = inside(np.tile(lam, n), rows).reshape(n, _RAY_SAMPLES)
+        found = hits.any(axis=1)
+        first = hits.argmax(axis=1)
+        # Bisect between the last sample outside and the first inside.
+        lo = np.where(first > 0, lam[np.maximum(first - 1, 0)], lam[0])[found]
+        hi = lam[first][found]
+        idx = np.nonzero(found)[0]
+        for _ in range(_RAY_BISECTIONS):
+            mid = 0.5 * (lo + hi)
+            ins = inside(mid, idx)
+            hi, lo = np.where(ins, mid, hi), np.where(ins, lo, mid)
+        out = np.full((n, 3), np.nan)
+        out[idx] = transform_points(inv, rays[idx] * hi[:, None])
+        return out
+
+
+@dataclass(frozen=True)
+class RigidOptions:
+    """Settings of :func:`fit_rigid`.
+
+    Attributes
+    ----------
+    ransac_threshold : float
+        PnP inlier threshold, pixels of reprojection error.
+    ransac_iterations : int
+        RANSAC iterations per frame.
+    min_points : int
+        Fewest lifted tracks (and PnP inliers) for a frame's pose; below it
+        the frame is reported as failed and interpolated. 6 is the minimum of
+        the linear (DLT) PnP solution.
+    refine : bool
+        Run the joint refinement (bundle adjustment) after the sequential pass.
+    refine_tracks : int
+        At most this many tracks, drawn at random, enter the refinement; a
+        few hundred constrain 6-DoF poses well and keep it to about a second.
+    refine_loss_scale : float
+        Huber loss scale in pixels: residuals above it count linearly.
+    depth_prior_weight : float
+        A point whose depth moves by one radius away from its lifted value
+        costs as much as this many pixels of reprojection error in one frame.
+        Weak on purpose: it only decides what the tracks cannot.
+    seed : int
+        Seed of the refinement's track sample.
+    """
+
+    ransac_threshold: float = 2.0
+    ransac_iterations: int = 200
+    min_points: int = 6
+    refine: bool = True
+    refine_tracks: int = 400
+    refine_loss_scale: float = 1.0
+    depth_prior_weight: float = 1.0
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class RigidFit:
+    """Poses of one rigid body over T frames, from M tracks.
+
+    Attributes
+    ----------
+    poses : (T, 4, 4) float64
+        Frame 0 → frame t, in camera-frame-0 coordinates; ``poses[0]`` is identity.
+    points : (M, 3) float64
+        Each track's point on the body at frame 0; NaN for tracks never lifted.
+    inliers : (T, M) bool
+        Observations within ``ransac_threshold`` pixels of their reprojection.
+    failed_frames : dict[int, str]
+        Frames whose pose was interpolated, with the reason.
+    reprojection_rms : float
+        RMS reprojection error of the inliers, pixels.
+    timings : dict[str, float]
+        Seconds spent in ``"pose"`` (sequential PnP) and ``"refine"``.
+    """
+
+    poses: np.ndarray
+    points: np.ndarray
+    inliers: np.ndarray
+    failed_frames: dict[int, str] = field(default_factory=dict)
+    reprojection_rms: float = float("nan")
+    timings: dict[str, float] = field(default_factory=dict)
+
+
+def _pnp(points: np.ndarray, uv: np.ndarray, k: np.ndarray, guess: np.ndarray,
+         options: RigidOptions) -> tuple[np.ndarray | None, np.ndarray, str]:
+    """RANSAC PnP from a guessed pose (4, 4), then LM on the inliers.
+
+    Returns (pose or None, inlier mask (N,), reason for a failure).
+    """
+    rvec = cv2.Rodrigues(guess[:3, :3])[0]
+    tvec = guess[:3, 3:].copy()
+    ok, rvec, tvec, inl = cv2.solvePnPRansac(
+        points, uv.astype(np.float64), k, None, rvec, tvec, useExtrinsicGuess=True,
+        iterationsCount=options.ransac_iterations, reprojectionError=options.ransac_threshold,
+        confidence=0.999, flags=cv2.SOLVEPNP_ITERATIVE)
+    count = 0 if inl is None else len(inl)
+    if not ok or count < options.min_points:
+        return None, np.zeros(len(points), bool), f"PnP RANSAC found {count} inliers, need {options.min_points}"
+    inl = inl[:, 0]
+    rvec, tvec = cv2.solvePnPRefineLM(points[inl], uv[inl].astype(np.float64), k, None, rvec, tvec)
+    pose = make_transform(cv2.Rodrigues(rvec)[0], tvec[:, 0])
+    cam = transform_points(pose, points)
+    err = np.linalg.norm(_project(k, cam) - uv, axis=1)
+    inliers = (cam[:, 2] > 0) & (err <= options.ransac_threshold)
+    if inliers.sum() < options.min_points:
+        return None, inliers, f"PnP refinement kept {inliers.sum()} inliers, need {options.min_points}"
+    return pose, inliers, ""
+
+
+def _lift_by_neighbours(uv: np.ndarray, known_uv: np.ndarray, known_depth: np.ndarray, pose: np.ndarray,
+                        k: np.ndarray) -> np.ndarray:
+    """Back-project pixels (N, 2) at the median depth of the 4 nearest known pixels → body points (N, 3)."""
+    nearest = cKDTree(known_uv).query(uv, k=min(4, len(known_uv)))[1].reshape(len(uv), -1)
+    depth = np.median(known_depth[nearest], axis=1)
+    return transform_points(invert_transform(pose), _rays(k, uv) * depth[:, None])
+
+
+def _fill_failed(poses: np.ndarray, failed: dict[int, str]) -> np.ndarray:
+    """Interpolate failed frames' poses (T, 4, 4) in SE(3) between good neighbours; hold after the last."""
+    good = np.array([t for t in range(len(poses)) if t not in failed])
+    out = poses.copy()
+    for t in failed:
+        before = good[good < t].max()
+        after = good[good > t]
+        if len(after):
+            out[t] = se3_interpolate(poses[before], poses[after[0]], (t - before) / (after[0] - before))
+        else:
+            out[t] = poses[before]
+    return out
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """Vectors (..., 3) → cross-product matrices (..., 3, 3)."""
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2], out[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    return out - np.swapaxes(out, -1, -2)
+
+
+def _huber_weights(norms: np.ndarray, scale: float) -> tuple[np.ndarray, float]:
+    """IRLS weights (O,) of the Huber loss on residual norms (O,), and the total Huber cost."""
+    big = norms > scale
+    cost = np.where(big, 2 * scale * norms - scale**2, norms**2).sum()
+    return np.where(big, scale / np.maximum(norms, 1e-300), 1.0), float(cost)
+
+
+def _bundle_adjust(tracks: Tracks, k: np.ndarray, poses: np.ndarray, points: np.ndarray,
+                   directions: np.ndarray, chosen: np.ndarray, free: np.ndarray, radius: float,
+                   options: RigidOptions, iterations: int = 30) -> tuple[np.ndarray, np.ndarray]:
+    """Jointly refine the poses of frames ``free`` (F,) and the points of tracks ``chosen`` (N,).
+
+    Minimises the Huber cost of the reprojection errors (pixels) of every
+    observation of the chosen tracks at frame 0 and the free frames, plus
+    ``(depth_prior_weight * n·(X - X_lift) / radius)²`` per point, with ``n``
+    (N, 3) the point's unit lifting ray in body coordinates. Levenberg–
+    Marquardt with iteratively reweighted Gauss–Newton steps, solved by the
+    Schur complement on the poses (Triggs et al. 1999, Sec. 6.1): the point
+    blocks (3x3 each) are eliminated and the reduced (6F, 6F) pose system is
+    solved densely. Poses are updated as ``R ← exp(ω) R, t ← t + δt``.
+
+    Returns refined poses (T, 4, 4) (frame 0 and failed frames unchanged) and points (N, 3).
+    """
+    num_frames = len(poses)
+    f_count, n_count = len(free), len(chosen)
+    slot = np.full(num_frames, -1)
+    slot[free] = np.arange(f_count)
+    pose_known = slot >= 0
+    pose_known[0] = True
+    obs_t, obs_i = np.nonzero(tracks.visible[:, chosen] & pose_known[:, None])  # (O,) frame and point
+    obs_uv = tracks.uv[obs_t, chosen[obs_i]].astype(np.float64)  # (O, 2)
+    obs_slot = slot[obs_t]
+    moving = obs_slot >= 0  # observations whose pose is a variable
+    fxy = np.array([k[0, 0], k[1, 1]])
+    x_lift = points[chosen].copy()
+    prior_w = options.depth_prior_weight / radius
+
+    def evaluate(rot: np.ndarray, trans: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, ...]:
+        rx = np.einsum("oij,oj->oi", rot[obs_t], pts[obs_i])  # (O, 3)
+        cam = rx + trans[obs_t]
+        err = _project(k, cam) - obs_uv  # (O, 2)
+        prior = prior_w * np.einsum("ni,ni->n", directions, pts - x_lift)  # (N,)
+        weights, cost = _huber_weights(np.linalg.norm(err, axis=1), options.refine_loss_scale)
+        return rx, cam, err, prior, weights, cost + float(prior @ prior)
+
+    rot, trans, pts = poses[:, :3, :3].copy(), poses[:, :3, 3].copy(), points[chosen].copy()
+    rx, cam, err, prior, weights, cost = evaluate(rot, trans, pts)
+    damping = 1e-3
+    for _ in range(iterations):
+        z = cam[:, 2]
+        j_proj = np.zeros((len(z), 2, 3))  # d pixel / d camera point
+        j_proj[:, 0, 0], j_proj[:, 1, 1] = fxy[0] / z, fxy[1] / z
+        j_proj[:, :, 2] = -fxy * cam[:, :2] / z[:, None] ** 2
+        j_pose = np.concatenate([-j_proj @ _skew(rx), j_proj], axis=2)  # (O, 2, 6)
+        j_point = j_proj @ rot[obs_t]  # (O, 2, 3)
+        wj_pose, wj_point = weights[:, None, None] * j_pose, weights[:, None, None] * j_point
+
+        # Normal equations, blockwise: A (F, 6, 6) poses, C (N, 3, 3) points, B (O, 6, 3) couplings.
+        a = np.zeros((f_count, 6, 6))
+        g = np.zeros((f_count, 6))
+        np.add.at(a, obs_slot[moving], np.einsum("oki,okj->oij", wj_pose[moving], j_pose[moving]))
+        np.add.at(g, obs_slot[moving], np.einsum("oki,ok->oi", wj_pose[moving], err[moving]))
+        c = np.zeros((n_count, 3, 3))
+        h = np.zeros((n_count, 3))
+        np.add.at(c, obs_i, np.einsum("oki,okj->oij", wj_point, j_point))
+        np.add.at(h, obs_i, np.einsum("oki,ok->oi", wj_point, err))
+        c += prior_w**2 * directions[:, :, None] * directions[:, None, :]
+        h += prior_w * prior[:, None] * directions
+        b = np.einsum("oki,okj->oij", wj_pose[moving], j_point[moving])  # (O', 6, 3)
+
+        # Couplings in a dense (N, F·6, 3) layout: the Schur complement is then one matrix product.
+        b_dense = np.zeros((n_count, f_count, 6, 3))
+        b_dense[obs_i[moving], obs_slot[moving]] = b
+        b_dense = b_dense.reshape(n_count, 6 * f_count, 3)
+        while True:
+            a_d = a + damping * (np.einsum("fii->fi", a)[:, :, None] * np.eye(6) + 1e-9 * np.eye(6))
+            c_d = c + damping * (np.einsum("nii->ni", c)[:, :, None] * np.eye(3) + 1e-9 * np.eye(3))
+            c_inv = np.linalg.inv(c_d)
+            e = b_dense @ c_inv  # (N, 6F, 3) = B C⁻¹ per point
+            # Reduced system S = A - Σ_n E_n B_nᵀ, r = g - Σ_n E_n h_n.
+            s_mat = scipy.linalg.block_diag(*a_d) - e.transpose(1, 0, 2).reshape(6 * f_count, -1) @ \
+                b_dense.transpose(0, 2, 1).reshape(-1, 6 * f_count)
+            r_vec = g.ravel() - np.einsum("nfk,nk->f", e, h)
+            try:
+                d_pose = -np.linalg.solve(s_mat, r_vec).reshape(f_count, 6)
+            except np.linalg.LinAlgError:
+                damping *= 10
+                continue
+            d_point = -np.einsum("nij,nj->ni", c_inv, h + np.einsum("nfk,f->nk", b_dense, d_pose.ravel()))
+            new_rot, new_trans = rot.copy(), trans.copy()
+            new_rot[free] = axis_angle_to_matrix(d_pose[:, :3]) @ rot[free]
+            new_trans[free] = trans[free] + d_pose[:, 3:]
+            trial = evaluate(new_rot, new_trans, pts + d_point)
+            if np.all(trial[1][:, 2] > 0) and trial[-1] <= cost:
+                break
+            damping *= 10
+            if damping > 1e8:
+                break
+        if damping > 1e8:
+            break
+        improvement = (cost - trial[-1]) / max(cost, 1e-300)
+        rot, trans, pts = new_rot, new_trans, pts + d_point
+        rx, cam, err, prior, weights, cost = trial
+        damping = max(damping / 10, 1e-7)
+        print('DBG', cost, damping, np.median(np.linalg.norm(err,axis=1)))
+        if improvement < 1e-6:
+            break
+    return make_transform(rot, trans), pts
+
+
+def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = RigidOptions(),
+              progress: Callable[[int, int], None] | None = None) -> RigidFit:
+    """Estimate the per-frame pose of one rigid body from its tracks (see the module docstring).
+
+    Parameters
+    ----------
+    tracks : Tracks
+        T frames, M tracks, all on the body.
+    shape : ShapePrior
+        The body's frame-0 volume (its scale fixes the poses' translation scale).
+    options : RigidOptions
+    progress : callable(done, total), optional
+        Called after each frame with ``total = T`` (the last step is the refinement).
+
+    Returns
+    -------
+    RigidFit
+    """
+    k = shape.K
+    num_frames, num_tracks = tracks.visible.shape
+    uv = tracks.uv.astype(np.float64)
+    poses = np.tile(np.eye(4), (num_frames, 1, 1))
+    points = np.full((num_tracks, 3), np.nan)
+    directions = np.full((num_tracks, 3), np.nan)  # unit lifting ray of each point, body coordinates
+    inliers = np.zeros((num_frames, num_tracks), bool)
+    failed: dict[int, str] = {}
+    t_start = time.perf_counter()
+
+    def lift(t: int, pose: np.ndarray) -> None:
+        new = np.nonzero(tracks.visible[t] & np.isnan(points[:, 0]))[0]
+        if not len(new):
+            return
+        lifted = shape.raycast(uv[t, new], pose)
+        miss = np.isnan(lifted[:, 0])
+        known = np.nonzero(inliers[t])[0]
+        if miss.any() and len(known):
+            # Mask pixels outside the moved prior volume: take nearby tracks' depth.
+            depth = transform_points(pose, points[known])[:, 2]
+            lifted[miss] = _lift_by_neighbours(uv[t, new[miss]], uv[t, known], depth, pose, k)
+        points[new] = lifted
+        centre = invert_transform(pose)[:3, 3]
+        ray = lifted - centre
+        directions[new] = ray / np.linalg.norm(ray, axis=1, keepdims=True)
+
+    lift(0, poses[0])
+    inliers[0] = tracks.visible[0] & np.isfinite(points[:, 0])
+    last = poses[0]
+    for t in range(1, num_frames):
+        usable = np.nonzero(tracks.visible[t] & np.isfinite(points[:, 0]))[0]
+        if len(usable) < options.min_points:
+            failed[t] = f"{len(usable)} lifted tracks visible, need {options.min_points}"
+        else:
+            pose, inl, reason = _pnp(points[usable], uv[t, usable], k, last, options)
+            if pose is None:
+                failed[t] = reason
+            else:
+                poses[t] = last = pose
+                inliers[t, usable[inl]] = True
+                lift(t, pose)
+        if t in failed:
+            poses[t] = last
+        if progress is not None:
+            progress(t, num_frames)
+    t_pose = time.perf_counter()
+
+    free = np.array([t for t in range(1, num_frames) if t not in failed], dtype=np.int64)
+    lifted = np.nonzero(np.isfinite(points[:, 0]) & (tracks.visible.sum(axis=0) >= 2))[0]
+    if options.refine and len(free) and len(lifted) >= options.min_points:
+        rng = np.random.default_rng(options.seed)
+        chosen = np.sort(rng.choice(lifted, min(options.refine_tracks, len(lifted)), replace=False))
+        poses, points[chosen] = _bundle_adjust(tracks, k, poses, points, directions[chosen], chosen, free,
+                                               shape.radius, options)
+    if failed:
+        poses = _fill_failed(poses, failed)
+    poses[0] = np.eye(4)
+    if progress is not None:
+        progress(num_frames, num_frames)
+
+    # Final inliers of every lifted track under the final poses.
+    cam = np.einsum("tij,mj->tmi", poses[:, :3, :3], np.nan_to_num(points)) + poses[:, None, :3, 3]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        err = np.linalg.norm(cam[..., :2] / cam[..., 2:] * [k[0, 0], k[1, 1]] + [k[0, 2], k[1, 2]] - uv, axis=2)
+    ok = tracks.visible & np.isfinite(points[:, 0])[None] & (cam[..., 2] > 0)
+    inliers = ok & (np.nan_to_num(err, nan=np.inf) <= options.ransac_threshold)
+    rms = float(np.sqrt(np.mean(err[inliers] ** 2))) if inliers.any() else float("nan")
+    timings = {"pose": t_pose - t_start, "refine": time.perf_counter() - t_pose}
+    return RigidFit(poses=poses, points=points, inliers=inliers, failed_frames=dict(sorted(failed.items())),
+                    reprojection_rms=rms, timings=timings)

@@ -1,0 +1,95 @@
+"""Object placement and ground-truth motions.
+
+The world frame is the camera frame (x right, y down, z forward). A motion
+gives the object's placement at frame 0 (object-local → world) and, per part,
+poses (P, T, 4, 4) mapping frame-0 world points to frame t. Magnitudes are
+drawn from the generator so that seeds give distinct cases; the clip always
+covers the whole motion, whatever the number of frames.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..camera import Camera
+from ..geometry import axis_angle_to_matrix, make_transform
+from ._objects import Shape
+
+#: Projected bounding radius of the object at frame 0, as a fraction of half
+#: the smaller image side. Smaller where the motion needs room to move.
+_FILL = {"translation": 0.58, "inplane": 0.75, "outofplane": 0.72, "oscillation": 0.62, "hinge": 0.64}
+
+
+def rotation_about(point: np.ndarray, axis: np.ndarray, angles: np.ndarray) -> np.ndarray:
+    """Rotations by ``angles`` (T,) radians about the line through ``point`` along ``axis`` → (T, 4, 4)."""
+    axis = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
+    r = axis_angle_to_matrix(np.asarray(angles, dtype=np.float64)[:, None] * axis)
+    return make_transform(r, point - r @ point)
+
+
+def _initial_rotation(rng: np.random.Generator, hinged: bool) -> np.ndarray:
+    """Object-local → world rotation (3, 3): a yaw to show a side face, then a tilt to show the top."""
+    yaw = np.radians(rng.uniform(20, 40) * rng.choice([-1, 1]))
+    pitch = np.radians(rng.uniform(25, 35) if hinged else rng.uniform(15, 30))
+    roll = np.radians(rng.uniform(-8, 8))
+    # Positive pitch about +x turns the top face (normal -y) towards the camera (-z).
+    return (axis_angle_to_matrix([0.0, 0.0, roll]) @ axis_angle_to_matrix([pitch, 0.0, 0.0])
+            @ axis_angle_to_matrix([0.0, yaw, 0.0]))
+
+
+def plan_motion(motion: str, shape: Shape, camera: Camera, num_frames: int,
+                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Place ``shape`` and move it.
+
+    Returns
+    -------
+    placement : (4, 4) float64
+        Object-local → world transform at frame 0.
+    poses : (P, T, 4, 4) float64
+        Part k's frame-0 world points → frame t; ``poses[:, 0]`` is identity.
+    """
+    num_parts = len(shape.parts)
+    rot0 = _initial_rotation(rng, shape.hinge is not None)
+    up = rot0 @ np.array([0.0, -1.0, 0.0])  # the object's vertical axis in the world
+    radius = shape.bounding_radius()
+    z0 = camera.fx * radius / (_FILL[motion] * min(camera.width, camera.height) / 2) * rng.uniform(0.95, 1.05)
+    half_w, half_h = z0 * camera.width / 2 / camera.fx, z0 * camera.height / 2 / camera.fy
+    centre = np.array([rng.uniform(-0.05, 0.05) * half_w, rng.uniform(-0.05, 0.05) * half_h, z0])
+    s = np.linspace(0.0, 1.0, num_frames)
+    sign = rng.choice([-1.0, 1.0])
+
+    if motion == "translation":
+        # Lateral travel is a share of the room the object leaves in the frame.
+        room_x, room_y = max(half_w - radius, 0.0), max(half_h - radius, 0.0)
+        shift = np.array([sign * rng.uniform(0.7, 0.95) * room_x, rng.uniform(-0.3, 0.3) * room_y,
+                          rng.choice([-1.0, 1.0]) * rng.uniform(0.12, 0.2) * z0])
+        centre = centre - shift / 2  # the path is centred on the frame
+        poses = make_transform(np.eye(3), s[:, None] * shift)
+    elif motion == "inplane":
+        # On the optical axis, so the image turns rigidly about the principal point.
+        centre = np.array([0.0, 0.0, z0])
+        poses = rotation_about(centre, [0.0, 0.0, 1.0], sign * np.radians(rng.uniform(75, 105)) * s)
+    elif motion == "outofplane":
+        poses = rotation_about(centre, up, sign * np.radians(rng.uniform(80, 100)) * s)
+    elif motion == "oscillation":
+        # A random mix of twist (about the vertical) and swing (about the horizontal
+        # image axis), pivoting at or above the centre like a hanging object.
+        mix = rng.normal(size=3) * [1.0, 0.7, 0.4]
+        axis = mix[0] * up + mix[1] * np.array([1.0, 0.0, 0.0]) + mix[2] * np.array([0.0, 0.0, 1.0])
+        pivot = centre + up * rng.uniform(0.0, 0.5) * radius
+        periods = rng.uniform(1.75, 2.5)
+        angles = np.radians(rng.uniform(20, 30)) * np.sin(2 * np.pi * periods * s)
+        poses = rotation_about(pivot, axis, angles)
+    elif motion == "hinge":
+        # Lower in the frame: the opening lid rises above the body.
+        centre[1] += 0.12 * half_h
+        body_turn = 0.0 if rng.random() < 0.5 else sign * np.radians(rng.uniform(6, 12))
+        body = rotation_about(centre, up, body_turn * s)
+        smooth = s * s * (3 - 2 * s)  # the lid starts and ends at rest
+        placement = make_transform(rot0, centre)
+        point = placement[:3, :3] @ shape.hinge[0] + centre
+        lid = body @ rotation_about(point, rot0 @ shape.hinge[1], np.radians(rng.uniform(60, 80)) * smooth)
+        return placement, np.stack([body, lid])
+    else:
+        raise ValueError(f"unknown motion {motion!r}")
+    return make_transform(rot0, centre), np.repeat(poses[None], num_parts, axis=0)
