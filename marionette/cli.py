@@ -10,7 +10,6 @@ import sys
 from pathlib import Path
 from typing import Annotated, Optional
 
-import click
 import numpy as np
 import typer
 
@@ -174,12 +173,12 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point: run the CLI, turning bad input into ``error: …`` and exit code 2."""
     try:
         app(args=argv, standalone_mode=False, prog_name="marionette")
-    except click.exceptions.Exit as e:
+    except typer.Exit as e:
         return e.exit_code
-    except click.exceptions.Abort:
+    except typer.Abort:
         print("error: interrupted", file=sys.stderr)
         return 130
-    except click.ClickException as e:
+    except typer.TyperException as e:  # typer >= 0.29 vendors click; usage errors land here
         print(f"error: {e.format_message().splitlines()[0]}", file=sys.stderr)
         return 2
     except InputError as e:

@@ -4,7 +4,8 @@ Follows the forward pass of the reference 3D Gaussian Splatting rasterizer
 (Kerbl et al., SIGGRAPH 2023, ``cuda_rasterizer/forward.cu``), with the EWA
 projection of Zwicker et al., "EWA Volume Splatting" (2001), Eq. 31:
 
-1. ``_preprocess`` (parallel over Gaussians): camera point ``t = W μ + w``,
+1. ``_activations`` (NumPy, whose exp and log are SIMD) and ``_preprocess``
+   (numba, parallel over Gaussians, branch-free): camera point ``t = W μ + w``,
    culled when ``t_z <= 0.2``; ``Σ = R S Sᵀ Rᵀ``; ``Σ' = J W Σ Wᵀ Jᵀ + 0.3 I``
    with ``J`` the perspective Jacobian at ``t``, whose ``t_x / t_z`` and
    ``t_y / t_z`` are clamped to 1.3× the half field of view; conic
@@ -12,17 +13,17 @@ projection of Zwicker et al., "EWA Volume Splatting" (2001), Eq. 31:
    ``max(0.1, ·)`` under the square root); colour from SH
    (:mod:`marionette.render.sh`) seen from the camera centre.
 2. ``_depth_order``: one global sort by (float32 depth, index), stable like
-   the reference's radix sort; the per-Gaussian tables are then gathered in
-   that order.
-3. ``_bin``: per-tile lists built by counting, filled in depth order so each
-   list comes out sorted.
+   the reference's radix sort; ``_gather`` copies the visible Gaussians' rows
+   in that order.
+3. ``_bin``: per-tile lists of Gaussians built by counting, filled in
+   depth order so each list comes out sorted.
 4. ``_blend`` (parallel over 16×16 tiles): front-to-back compositing,
    ``α = min(0.99, o exp(-½ dᵀ Σ'^-1 d))``, skip ``α < 1/255``, a pixel stops
    when ``T (1 - α) < 1e-4`` (that Gaussian is not added), then
-   ``T · background`` is added. The pixels of a tile row are updated 8 at a
-   time without branches so that LLVM vectorises them; for that, ``exp`` is a
-   degree-11 polynomial on ``[-5.6, 0]`` (absolute error < 4e-7, see
-   ``_EXP_COEFFS``); below -5.6, ``α < 1/255`` whatever the opacity.
+   ``T · background`` is added. ``_blend_lanes`` updates 8 or 16 pixels of a
+   tile row without branches so that LLVM vectorises it; for that, ``exp`` is
+   a polynomial (``_exp_clamped``, absolute error < 3e-7 on ``[-5.6, 0]``;
+   below -5.6, ``α < 1/255`` whatever the opacity).
 
 Conventions (OpenCV, see :mod:`marionette.camera`): pixel ``(x, y)`` is
 evaluated at exactly ``(x, y)``, (0, 0) the centre of the top-left pixel, and a
@@ -43,6 +44,8 @@ this is a pure speed-up that changes no result.
 from __future__ import annotations
 
 import math
+import os
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numba
@@ -53,7 +56,13 @@ from ..errors import InputError
 from ..gaussians import Gaussians
 from .sh import _eval_sh_one
 
-__all__ = ["render", "RenderOutput", "TILE", "NEAR", "LOW_PASS"]
+__all__ = ["render", "RenderOutput"]
+
+# Idle OpenMP threads busy-wait by default, and on a shared machine they take
+# the core that a descheduled worker needs to finish its share: measured 2-3×
+# slower frames on 2 cores with one other busy process, no change when idle.
+# Takes effect if set before numba first loads libgomp; a user's value wins.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 #: Tile side in pixels.
 TILE = 16
@@ -71,9 +80,9 @@ _ELLIPSE_MARGIN = 0.01
 _U, _V, _CA, _CB, _CC, _OPACITY, _R, _G, _B, _Z = range(10)
 _NPARAM = 10
 
-#: ``exp(x)`` for x in [_EXP_LO, 0] as a polynomial in ``s = 2 x / -_EXP_LO + 1``
+#: ``exp(x)`` for x in [_EXP_LO, 0] as a polynomial in ``s = 2 x / -_EXP_LO + 1`` in [-1, 1]
 #: (coefficients of s^0 .. s^11): Chebyshev interpolation of degree 11, turned
-#: into monomials. Evaluated in float32 its absolute error is below 4e-7
+#: into monomials. Evaluated in float32 its absolute error is below 3e-7
 #: (``tests/test_rasterizer.py::test_exp_polynomial``). 0.99 exp(-5.6) < 1/255,
 #: so clamping the exponent at -5.6 changes no kept alpha.
 _EXP_LO = -5.6
@@ -132,24 +141,40 @@ def render(gaussians: Gaussians, camera: Camera,
     if not isinstance(camera, Camera):
         raise InputError(f"render: camera must be a Camera, got {type(camera).__name__}")
     bg = _check_background(background)
+    return RenderOutput(*_rasterize(gaussians, camera, bg))
+
+
+def _rasterize(gaussians: Gaussians, camera: Camera, background: np.ndarray,
+               lap: Callable[[str], None] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The pipeline behind :func:`render` on checked inputs: background (3,) float32 →
+    image (H, W, 3), alpha (H, W), depth (H, W).
+
+    ``lap(stage)``, if given, is called as each stage ends (the benchmark times
+    them this way).
+    """
+    lap = lap or (lambda stage: None)
     w, h = camera.width, camera.height
+    variances, opacities, ellipse = _activations(gaussians.log_scales, gaussians.opacity_logits)
     params, boxes, depths, status = _preprocess(
         gaussians.means, gaussians.quats, gaussians.log_scales, gaussians.opacity_logits,
-        gaussians.sh, camera.world_to_camera, camera.K, camera.center, w, h)
+        gaussians.sh, variances, opacities, ellipse, camera.world_to_camera, camera.K,
+        camera.center, w, h)
     if np.any(status < 0):
-        gaussians.check_finite()  # names the attribute
-        raise InputError("render: Gaussians contain NaN or infinite values")
+        gaussians.check_finite()  # raises, naming the attribute
+    lap("preprocess")
     order = _depth_order(depths, status)
-    # Front-to-back copies: tile lists then walk memory forwards.
-    params, boxes = params[order], boxes[order]
+    params, boxes = _gather(order, params, boxes)
+    lap("sort")
     tile_start, tile_ids = _bin(boxes, w, h, _BIN_RUNS)
+    lap("bin")
     # Tiles differ widely in cost (object vs empty): hand them out one at a time.
     previous = numba.set_parallel_chunksize(1)
     try:
-        image, alpha, depth = _blend(tile_start, tile_ids, params, boxes, w, h, bg)
+        out = _blend(tile_start, tile_ids, params, boxes, w, h, background)
     finally:
         numba.set_parallel_chunksize(previous)
-    return RenderOutput(image, alpha, depth)
+    lap("blend")
+    return out
 
 
 def _check_background(background: object) -> np.ndarray:
@@ -161,6 +186,23 @@ def _check_background(background: object) -> np.ndarray:
     if bg.shape != (3,) or not np.all(np.isfinite(bg)) or np.any(bg < 0) or np.any(bg > 1):
         raise InputError(f"render: background must be 3 finite numbers in [0, 1], got {background!r}")
     return bg.astype(np.float32)
+
+
+def _activations(log_scales: np.ndarray, opacity_logits: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Transcendental per-Gaussian terms, in NumPy because its exp and log are
+    SIMD-vectorised (numba calls libm one value at a time).
+
+    log_scales (N, 3), opacity_logits (N,) float32 → variances (N, 3)
+    ``exp(2 log_scales)``, opacities (N,) ``sigmoid(logits)`` and ellipse (N,)
+    ``2 ln(255 o) + _ELLIPSE_MARGIN``, all float32. Overflows give inf
+    variances or zero opacities (ellipse -inf), which ``_preprocess`` culls.
+    """
+    with np.errstate(over="ignore", divide="ignore"):
+        variances = np.exp(np.float32(2.0) * log_scales)
+        opacities = np.float32(1.0) / (np.float32(1.0) + np.exp(-opacity_logits))
+        ellipse = np.float32(2.0) * np.log(np.float32(255.0) * opacities) + np.float32(_ELLIPSE_MARGIN)
+    return variances, opacities, ellipse
 
 
 def _depth_order(depths: np.ndarray, status: np.ndarray) -> np.ndarray:
@@ -175,13 +217,20 @@ def _depth_order(depths: np.ndarray, status: np.ndarray) -> np.ndarray:
     return (keys & np.uint64(0xFFFFFFFF)).astype(np.int32)
 
 
-@numba.njit(parallel=True, cache=True)
-def _preprocess(means, quats, log_scales, opacity_logits, sh, view, K, campos, width, height):
-    """Project Gaussians to screen space.
+@numba.njit(parallel=True, cache=True, error_model="numpy")
+def _preprocess(means, quats, log_scales, opacity_logits, sh, variances, opacities, ellipse,
+                view, K, campos, width, height):
+    """Project Gaussians to screen space, without branches (culling is a flag).
+
+    Colours are evaluated for all Gaussians: streaming through ``sh`` in order
+    is far cheaper than fetching the visible ones' rows in depth order.
 
     Parameters
     ----------
     means (N, 3), quats (N, 4), log_scales (N, 3), opacity_logits (N,), sh (N, C, 3) : float32
+        The Gaussians; scales and logits are only checked for finiteness here.
+    variances (N, 3), opacities (N,), ellipse (N,) : float32
+        From ``_activations``.
     view : (4, 4) float64 world-to-camera; K : (3, 3) float64; campos : (3,) float64
     width, height : int
 
@@ -205,111 +254,120 @@ def _preprocess(means, quats, log_scales, opacity_logits, sh, view, K, campos, w
     lim_x1 = (width - 0.5 - cx) / fx + 0.15 * width / fx
     lim_y0 = -(cy + 0.5) / fy - 0.15 * height / fy
     lim_y1 = (height - 0.5 - cy) / fy + 0.15 * height / fy
-    params = np.zeros((n, _NPARAM), np.float32)
-    boxes = np.zeros((n, 4), np.int32)
-    depths = np.zeros(n, np.float32)
-    status = np.zeros(n, np.int8)
+    w00, w01, w02, w03 = view[0, 0], view[0, 1], view[0, 2], view[0, 3]
+    w10, w11, w12, w13 = view[1, 0], view[1, 1], view[1, 2], view[1, 3]
+    w20, w21, w22, w23 = view[2, 0], view[2, 1], view[2, 2], view[2, 3]
+    params = np.empty((n, _NPARAM), np.float32)
+    boxes = np.empty((n, 4), np.int32)
+    depths = np.empty(n, np.float32)
+    status = np.empty(n, np.int8)
     for i in numba.prange(n):
-        # 0 * x is NaN exactly when x is NaN or infinite: one branch for all inputs.
-        nan = 0.0 * opacity_logits[i]
-        for k in range(3):
-            nan += 0.0 * means[i, k] + 0.0 * log_scales[i, k]
-        for k in range(4):
-            nan += 0.0 * quats[i, k]
-        for c in range(sh.shape[1]):
-            for k in range(3):
-                nan += 0.0 * sh[i, c, k]
-        if nan != 0.0:
-            status[i] = -1
-            continue
+        # 0 * x is NaN exactly when x is NaN or infinite.
+        zero = np.float32(0.0)
+        nan = (zero * opacity_logits[i] + zero * means[i, 0] + zero * means[i, 1]
+               + zero * means[i, 2] + zero * log_scales[i, 0] + zero * log_scales[i, 1]
+               + zero * log_scales[i, 2] + zero * quats[i, 0] + zero * quats[i, 1]
+               + zero * quats[i, 2] + zero * quats[i, 3])
         mx, my, mz = np.float64(means[i, 0]), np.float64(means[i, 1]), np.float64(means[i, 2])
-        tx = view[0, 0] * mx + view[0, 1] * my + view[0, 2] * mz + view[0, 3]
-        ty = view[1, 0] * mx + view[1, 1] * my + view[1, 2] * mz + view[1, 3]
-        tz = view[2, 0] * mx + view[2, 1] * my + view[2, 2] * mz + view[2, 3]
-        if tz <= NEAR:
-            continue
-        s00, s01, s02, s11, s12, s22 = _world_covariance(quats[i], log_scales[i])
+        tx = w00 * mx + w01 * my + w02 * mz + w03
+        ty = w10 * mx + w11 * my + w12 * mz + w13
+        tz = w20 * mx + w21 * my + w22 * mz + w23
+        itz = 1.0 / max(tz, NEAR)  # culled below the near plane; this only keeps values finite
+        s00, s01, s02, s11, s12, s22 = _world_covariance(quats, variances, i)
         # T = J W (2x3): Jacobian rows at the clamped direction, times the view rotation.
-        xz = min(max(tx / tz, lim_x0), lim_x1)
-        yz = min(max(ty / tz, lim_y0), lim_y1)
-        j00, j02 = fx / tz, -fx * xz / tz
-        j11, j12 = fy / tz, -fy * yz / tz
-        p0, p1, p2 = (j00 * view[0, 0] + j02 * view[2, 0], j00 * view[0, 1] + j02 * view[2, 1],
-                      j00 * view[0, 2] + j02 * view[2, 2])
-        q0, q1, q2 = (j11 * view[1, 0] + j12 * view[2, 0], j11 * view[1, 1] + j12 * view[2, 1],
-                      j11 * view[1, 2] + j12 * view[2, 2])
-        # Σ' = T Σ Tᵀ, with Σ symmetric.
+        xz, yz = tx * itz, ty * itz
+        j00, j11 = fx * itz, fy * itz
+        j02 = -j00 * min(max(xz, lim_x0), lim_x1)
+        j12 = -j11 * min(max(yz, lim_y0), lim_y1)
+        p0, p1, p2 = j00 * w00 + j02 * w20, j00 * w01 + j02 * w21, j00 * w02 + j02 * w22
+        q0, q1, q2 = j11 * w10 + j12 * w20, j11 * w11 + j12 * w21, j11 * w12 + j12 * w22
+        # Σ' = T Σ Tᵀ + low-pass, with Σ symmetric.
         sp0 = s00 * p0 + s01 * p1 + s02 * p2
         sp1 = s01 * p0 + s11 * p1 + s12 * p2
         sp2 = s02 * p0 + s12 * p1 + s22 * p2
-        a = p0 * sp0 + p1 * sp1 + p2 * sp2
+        a = p0 * sp0 + p1 * sp1 + p2 * sp2 + LOW_PASS
         b = q0 * sp0 + q1 * sp1 + q2 * sp2
         c = (q0 * (s00 * q0 + s01 * q1 + s02 * q2) + q1 * (s01 * q0 + s11 * q1 + s12 * q2)
-             + q2 * (s02 * q0 + s12 * q1 + s22 * q2))
-        a += LOW_PASS
-        c += LOW_PASS
+             + q2 * (s02 * q0 + s12 * q1 + s22 * q2)) + LOW_PASS
         det = a * c - b * b
-        if not det > 0.0:  # also catches NaN from overflowing scales
-            continue
         mid = 0.5 * (a + c)
-        lam = mid + math.sqrt(max(0.1, mid * mid - det))
-        radius = math.ceil(3.0 * math.sqrt(lam))
-        opacity = 1.0 / (1.0 + math.exp(-np.float64(opacity_logits[i])))
-        if not (np.isfinite(radius) and 255.0 * opacity > 1.0):
-            continue
-        q = 2.0 * math.log(255.0 * opacity) + _ELLIPSE_MARGIN
-        u = fx * tx / tz + cx
-        v = fy * ty / tz + cy
-        ex = min(math.sqrt(q * a), radius)
-        ey = min(math.sqrt(q * c), radius)
+        radius = math.ceil(3.0 * math.sqrt(mid + math.sqrt(max(0.1, mid * mid - det))))
+        q = np.float64(ellipse[i])
+        u, v = fx * xz + cx, fy * yz + cy
+        # Half-sizes of the box: the alpha ellipse's bounding box, within the 3σ square.
+        ex = min(math.sqrt(max(q * a, 0.0)), radius)
+        ey = min(math.sqrt(max(q * c, 0.0)), radius)
         # Clip in float before converting, so far-off Gaussians cannot overflow int32.
-        x0 = math.ceil(min(max(u - radius, u - ex, -1.0), width))
-        x1 = math.floor(max(min(u + radius, u + ex, width), -1.0))
-        y0 = math.ceil(min(max(v - radius, v - ey, -1.0), height))
-        y1 = math.floor(max(min(v + radius, v + ey, height), -1.0))
-        x0, x1 = max(x0, 0), min(x1, width - 1)
-        y0, y1 = max(y0, 0), min(y1, height - 1)
-        if x0 > x1 or y0 > y1:
-            continue
+        x0 = max(math.ceil(min(max(u - ex, -1.0), width)), 0)
+        x1 = min(math.floor(max(min(u + ex, width), -1.0)), width - 1)
+        y0 = max(math.ceil(min(max(v - ey, -1.0), height)), 0)
+        y1 = min(math.floor(max(min(v + ey, height), -1.0)), height - 1)
+        # det < inf rejects overflowing scales; ellipse <= margin means opacity <= 1/255,
+        # where every alpha would be skipped.
+        visible = ((tz > NEAR) & (det > 0.0) & (det < np.inf) & (q > _ELLIPSE_MARGIN)
+                   & (x0 <= x1) & (y0 <= y1))
         dx, dy, dz = mx - campos[0], my - campos[1], mz - campos[2]
-        norm = math.sqrt(dx * dx + dy * dy + dz * dz)
-        red, green, blue = _eval_sh_one(sh[i], dx / norm, dy / norm, dz / norm)
-        p = params[i]
-        p[_U], p[_V] = u, v
-        p[_CA], p[_CB], p[_CC] = c / det, -b / det, a / det
-        p[_OPACITY], p[_R], p[_G], p[_B], p[_Z] = opacity, red, green, blue, tz
+        inv = 1.0 / math.sqrt(max(dx * dx + dy * dy + dz * dz, 1e-300))
+        red, green, blue = _eval_sh_one(sh, i, dx * inv, dy * inv, dz * inv)
+        # A non-finite SH coefficient makes its channel's sum NaN or inf.
+        nan += zero * red + zero * green + zero * blue
+        status[i] = -1 if nan != zero else (1 if visible else 0)
+        idet = 1.0 / det
+        params[i, _U] = u
+        params[i, _V] = v
+        params[i, _CA] = c * idet
+        params[i, _CB] = -b * idet
+        params[i, _CC] = a * idet
+        params[i, _OPACITY] = opacities[i]
+        params[i, _R], params[i, _G], params[i, _B] = red, green, blue
+        params[i, _Z] = tz
         boxes[i, 0], boxes[i, 1], boxes[i, 2], boxes[i, 3] = x0, x1, y0, y1
         depths[i] = tz
-        status[i] = 1
     return params, boxes, depths, status
 
 
 @numba.njit(cache=True)
-def _world_covariance(quat, log_scale):
-    """Σ = R S Sᵀ Rᵀ from quat (4,) ``w, x, y, z`` and log_scale (3,) → its upper triangle
-    ``(s00, s01, s02, s11, s12, s22)`` in float64.
+def _world_covariance(quats, variances, i):
+    """Σ = R S Sᵀ Rᵀ of Gaussian ``i`` from quats (N, 4) ``w, x, y, z`` and variances (N, 3)
+    (``S²``) → its upper triangle ``(s00, s01, s02, s11, s12, s22)`` in float64.
 
     The quaternion is normalised here; a zero quaternion gives the identity, as
     in the reference (its normalisation leaves zeros, which the matrix formula
     turns into the identity).
     """
-    w, x, y, z = (np.float64(quat[0]), np.float64(quat[1]), np.float64(quat[2]),
-                  np.float64(quat[3]))
-    norm = math.sqrt(w * w + x * x + y * y + z * z)
-    if norm > 0.0:
-        w, x, y, z = w / norm, x / norm, y / norm, z / norm
+    w, x, y, z = (np.float64(quats[i, 0]), np.float64(quats[i, 1]), np.float64(quats[i, 2]),
+                  np.float64(quats[i, 3]))
+    norm2 = w * w + x * x + y * y + z * z
+    inv = 1.0 / math.sqrt(norm2) if norm2 > 0.0 else 0.0
+    w, x, y, z = w * inv, x * inv, y * inv, z * inv
     r00, r01, r02 = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
     r10, r11, r12 = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
     r20, r21, r22 = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
-    v0 = math.exp(2.0 * np.float64(log_scale[0]))
-    v1 = math.exp(2.0 * np.float64(log_scale[1]))
-    v2 = math.exp(2.0 * np.float64(log_scale[2]))
+    v0, v1, v2 = np.float64(variances[i, 0]), np.float64(variances[i, 1]), np.float64(variances[i, 2])
     return (r00 * r00 * v0 + r01 * r01 * v1 + r02 * r02 * v2,
             r00 * r10 * v0 + r01 * r11 * v1 + r02 * r12 * v2,
             r00 * r20 * v0 + r01 * r21 * v1 + r02 * r22 * v2,
             r10 * r10 * v0 + r11 * r11 * v1 + r12 * r12 * v2,
             r10 * r20 * v0 + r11 * r21 * v1 + r12 * r22 * v2,
             r20 * r20 * v0 + r21 * r21 * v1 + r22 * r22 * v2)
+
+
+@numba.njit(parallel=True, cache=True)
+def _gather(order, params, boxes):
+    """Rows of params (N, 10) float32 and boxes (N, 4) int32 picked by order (M,) int32 →
+    (M, 10), (M, 4): one pass of scattered reads, after which ``_bin`` reads
+    sequentially and each tile's list walks memory forwards. Element loops: a
+    row slice would bump a reference count shared by all threads."""
+    m = order.shape[0]
+    params_out = np.empty((m, _NPARAM), np.float32)
+    boxes_out = np.empty((m, 4), np.int32)
+    for i in numba.prange(m):
+        g = order[i]
+        for k in range(_NPARAM):
+            params_out[i, k] = params[g, k]
+        for k in range(4):
+            boxes_out[i, k] = boxes[g, k]
+    return params_out, boxes_out
 
 
 @numba.njit(parallel=True, cache=True)
@@ -325,8 +383,7 @@ def _bin(boxes, width, height, nruns):
     ----------
     boxes : (M, 4) int32
         Pixel boxes ``x0, x1, y0, y1`` of the visible Gaussians, front to back.
-    width, height : int
-    nruns : int
+    width, height, nruns : int
 
     Returns
     -------
@@ -365,6 +422,60 @@ def _bin(boxes, width, height, nruns):
     return tile_start, tile_ids
 
 
+@numba.njit(cache=True, inline="always")
+def _exp_clamped(x):
+    """``exp(max(x, _EXP_LO))`` for float32 ``x <= 0`` (scalar or array), by the polynomial
+    ``_EXP_COEFFS``, so that loops calling it vectorise."""
+    f32 = np.float32
+    s = np.maximum(x, f32(_EXP_LO)) * f32(-2.0 / _EXP_LO) + f32(1.0)  # [-5.6, 0] → [-1, 1]
+    c = _EXP_COEFFS
+    # Estrin's scheme: a dependency chain 4 deep instead of Horner's 11.
+    s2 = s * s
+    s4 = s2 * s2
+    return (((f32(c[0]) + f32(c[1]) * s) + s2 * (f32(c[2]) + f32(c[3]) * s))
+            + s4 * ((f32(c[4]) + f32(c[5]) * s) + s2 * (f32(c[6]) + f32(c[7]) * s))
+            + s4 * s4 * ((f32(c[8]) + f32(c[9]) * s) + s2 * (f32(c[10]) + f32(c[11]) * s)))
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract"})
+def _blend_lanes(state, base, j0, nlanes, du, a2, b1, c0, xlo, xhi, opacity, red, green, blue, z):
+    """Composite one Gaussian onto lanes ``j0 .. j0 + nlanes - 1`` of one tile row.
+
+    Branch-free so that it vectorises. ``state`` (5 · 256,) float32 holds the
+    tile's planes T (negated once stopped), R, G, B, Σ w z; ``base`` (uint64) is
+    the row's offset; ``dx = lane + du``; ``power = (a2 dx + b1) dx + c0``; the
+    box spans lanes ``xlo .. xhi``. Returns the number of pixels that stopped.
+    """
+    f32 = np.float32
+    zero, one = f32(0.0), f32(1.0)
+    min_alpha, max_alpha, min_t = f32(1.0 / 255.0), f32(0.99), f32(1e-4)
+    # uint64 offsets (uint64 * int64 would be float64 in numba), written here as
+    # constants so LLVM proves the planes disjoint.
+    p_r, p_g, p_b, p_z = (np.uint64(TILE * TILE), np.uint64(2 * TILE * TILE),
+                          np.uint64(3 * TILE * TILE), np.uint64(4 * TILE * TILE))
+    stopped = 0
+    for jj in range(nlanes):
+        j = j0 + jj
+        lane = f32(j)
+        dx = lane + du
+        power = (a2 * dx + b1) * dx + c0
+        alpha = min(max_alpha, opacity * _exp_clamped(power))
+        i = base + np.uint64(j)
+        tr = state[i]
+        use = (lane >= xlo) & (lane <= xhi) & (tr > zero) & (power <= zero) & (alpha >= min_alpha)
+        test_t = tr * (one - alpha)
+        stop = use & (test_t < min_t)
+        add = use & (test_t >= min_t)
+        w = alpha * tr if add else zero
+        state[i + p_r] += w * red
+        state[i + p_g] += w * green
+        state[i + p_b] += w * blue
+        state[i + p_z] += w * z
+        state[i] = test_t if add else (-tr if stop else tr)
+        stopped += stop
+    return stopped
+
+
 # ``contract`` only lets LLVM fuse a * b + c into one FMA (one rounding instead
 # of two); no other fast-math licence is taken.
 @numba.njit(parallel=True, cache=True, error_model="numpy", fastmath={"contract"})
@@ -373,17 +484,18 @@ def _blend(tile_start, tile_ids, params, boxes, width, height, background):
 
     A tile keeps its state in one flat float32 array of five 16×16 planes:
     transmittance ``T`` (stored negated once the pixel has stopped), R, G, B
-    and ``Σ w z``. One buffer and unsigned indices let LLVM vectorise the
-    8-pixel loop without aliasing checks or negative-index fix-ups. Rows of a
-    Gaussian's box are visited in 8-pixel halves; a row whose pixels have all
-    stopped is skipped, and the tile ends when all its pixels have.
+    and ``Σ w z``. One buffer and unsigned indices let LLVM vectorise
+    ``_blend_lanes`` without aliasing checks or negative-index fix-ups. Each
+    row of a Gaussian's box is composited 8 or 16 pixels at a time; a row
+    whose pixels have all stopped is skipped, and the tile ends when all its
+    pixels have.
 
     Parameters
     ----------
     tile_start : (n_tiles + 1,) int64; tile_ids : (P,) int32
         From ``_bin``.
     params : (M, 10) float32; boxes : (M, 4) int32
-        ``_preprocess`` tables of the visible Gaussians, front to back.
+        The visible Gaussians' rows, front to back (``_gather``).
     width, height : int
     background : (3,) float32
 
@@ -398,20 +510,9 @@ def _blend(tile_start, tile_ids, params, boxes, width, height, background):
     depth_out = np.empty((height, width), np.float32)
     f32 = np.float32
     zero, half, one = f32(0.0), f32(0.5), f32(1.0)
-    min_alpha, max_alpha, min_t = f32(1.0 / 255.0), f32(0.99), f32(1e-4)
-    exp_lo, exp_scale = f32(_EXP_LO), f32(-2.0 / _EXP_LO)
-    e0, e1, e2, e3, e4, e5, e6, e7, e8, e9, e10, e11 = (
-        f32(_EXP_COEFFS[0]), f32(_EXP_COEFFS[1]), f32(_EXP_COEFFS[2]), f32(_EXP_COEFFS[3]),
-        f32(_EXP_COEFFS[4]), f32(_EXP_COEFFS[5]), f32(_EXP_COEFFS[6]), f32(_EXP_COEFFS[7]),
-        f32(_EXP_COEFFS[8]), f32(_EXP_COEFFS[9]), f32(_EXP_COEFFS[10]), f32(_EXP_COEFFS[11]))
     for t in numba.prange(ntiles):
         xs, ys = (t % ntx) * TILE, (t // ntx) * TILE
         tw, th = min(TILE, width - xs), min(TILE, height - ys)
-        # Plane offsets: uint64 (uint64 * int64 would be float64 in numba), and set
-        # inside the parallel loop so LLVM sees constants and proves the planes
-        # disjoint (outer variables reach the loop body as arguments).
-        p_r, p_g, p_b, p_z = (np.uint64(TILE * TILE), np.uint64(2 * TILE * TILE),
-                              np.uint64(3 * TILE * TILE), np.uint64(4 * TILE * TILE))
         state = np.zeros(5 * TILE * TILE, np.float32)
         state[:TILE * TILE] = one
         row_done = np.zeros(TILE, np.int64)
@@ -421,7 +522,7 @@ def _blend(tile_start, tile_ids, params, boxes, width, height, background):
             # Box in tile coordinates.
             bx0, bx1 = max(boxes[g, 0] - xs, 0), min(boxes[g, 1] - xs, tw - 1)
             by0, by1 = max(boxes[g, 2] - ys, 0), min(boxes[g, 3] - ys, th - 1)
-            ca, cb, cc = params[g, _CA], params[g, _CB], params[g, _CC]
+            ca, cb, cc, v = params[g, _CA], params[g, _CB], params[g, _CC], params[g, _V]
             opacity, z = params[g, _OPACITY], params[g, _Z]
             red, green, blue = params[g, _R], params[g, _G], params[g, _B]
             du = f32(xs) - params[g, _U]  # dx = lane + du
@@ -430,49 +531,32 @@ def _blend(tile_start, tile_ids, params, boxes, width, height, background):
             for ly in range(by0, by1 + 1):
                 if row_done[ly] == tw:
                     continue
-                dy = f32(ys + ly) - params[g, _V]
+                dy = f32(ys + ly) - v
                 # power = -½ (a dx² + c dy²) - b dx dy = (a2 dx + b1) dx + c0
                 b1 = -cb * dy
                 c0 = -half * cc * dy * dy
                 base = np.uint64(ly * TILE)
-                nd = 0
-                for j0 in range(bx0 - bx0 % 8, bx1 + 1, 8):
-                    for jj in range(8):
-                        j = j0 + jj
-                        lane = f32(j)
-                        dx = lane + du
-                        power = (a2 * dx + b1) * dx + c0
-                        s = (max(power, exp_lo) - exp_lo) * exp_scale - one
-                        e = ((((((((((e11 * s + e10) * s + e9) * s + e8) * s + e7) * s + e6) * s
-                                  + e5) * s + e4) * s + e3) * s + e2) * s + e1) * s + e0
-                        alpha = min(max_alpha, opacity * e)
-                        i = base + np.uint64(j)
-                        tr = state[i]
-                        use = ((lane >= xlo) & (lane <= xhi) & (tr > zero) & (power <= zero)
-                               & (alpha >= min_alpha))
-                        test_t = tr * (one - alpha)
-                        stop = use & (test_t < min_t)
-                        add = use & (test_t >= min_t)
-                        w = alpha * tr if add else zero
-                        state[i + p_r] += w * red
-                        state[i + p_g] += w * green
-                        state[i + p_b] += w * blue
-                        state[i + p_z] += w * z
-                        state[i] = test_t if add else (-tr if stop else tr)
-                        nd += stop
+                # The 8 lanes of the aligned half holding the box, or all 16: fixed trip
+                # counts, which LLVM turns into one or two 8-wide vector iterations.
+                h0 = bx0 - bx0 % 8
+                if bx1 < h0 + 8:
+                    nd = _blend_lanes(state, base, h0, 8, du, a2, b1, c0, xlo, xhi, opacity,
+                                      red, green, blue, z)
+                else:
+                    nd = _blend_lanes(state, base, 0, TILE, du, a2, b1, c0, xlo, xhi, opacity,
+                                      red, green, blue, z)
                 row_done[ly] += nd
                 ndone += nd
             if ndone == tw * th:
                 break
+        planes = state.reshape(5, TILE, TILE)
         for ly in range(th):
             for lx in range(tw):
-                i = np.uint64(ly * TILE + lx)
-                tr = abs(state[i])
+                tr = abs(planes[0, ly, lx])
                 y, x = ys + ly, xs + lx
-                image[y, x, 0] = min(max(state[i + p_r] + tr * background[0], zero), one)
-                image[y, x, 1] = min(max(state[i + p_g] + tr * background[1], zero), one)
-                image[y, x, 2] = min(max(state[i + p_b] + tr * background[2], zero), one)
+                for ch in range(3):
+                    image[y, x, ch] = min(max(planes[1 + ch, ly, lx] + tr * background[ch], zero), one)
                 a = one - tr
                 alpha_out[y, x] = a
-                depth_out[y, x] = state[i + p_z] / a if a > zero else zero
+                depth_out[y, x] = planes[4, ly, lx] / a if a > zero else zero
     return image, alpha_out, depth_out

@@ -72,20 +72,30 @@ def eval_sh(sh: np.ndarray, dirs: np.ndarray) -> np.ndarray:
     return np.maximum(rgb, 0.0).astype(np.float32)
 
 
-@numba.njit(cache=True)
-def _eval_sh_one(sh: np.ndarray, x: float, y: float, z: float) -> tuple[float, float, float]:
-    """Numba twin of :func:`eval_sh` for one Gaussian: sh (C, 3), unit dir → (r, g, b)."""
+@numba.njit(cache=True, inline="always")
+def _eval_sh_one(sh: np.ndarray, i: int, x: float, y: float, z: float) -> tuple[float, float, float]:
+    """Numba twin of :func:`eval_sh` for Gaussian ``i``: sh (N, C, 3), unit dir → (r, g, b)."""
+    return (max(_sh_channel(sh, i, 0, x, y, z) + 0.5, 0.0),
+            max(_sh_channel(sh, i, 1, x, y, z) + 0.5, 0.0),
+            max(_sh_channel(sh, i, 2, x, y, z) + 0.5, 0.0))
+
+
+@numba.njit(cache=True, inline="always")
+def _sh_channel(sh: np.ndarray, i: int, k: int, x: float, y: float, z: float) -> float:
+    """SH(dir) of colour channel ``k`` of Gaussian ``i``: sh (N, C, 3), unit dir → float."""
+    c = sh.shape[1]
     xx, yy, zz = x * x, y * y, z * z
-    # All 16 basis values as a stack tuple (no allocation); only the first C are used.
-    b = (SH_C0, -SH_C1 * y, SH_C1 * z, -SH_C1 * x,
-         SH_C2[0] * x * y, SH_C2[1] * y * z, SH_C2[2] * (2 * zz - xx - yy),
-         SH_C2[3] * x * z, SH_C2[4] * (xx - yy),
-         SH_C3[0] * y * (3 * xx - yy), SH_C3[1] * x * y * z, SH_C3[2] * y * (4 * zz - xx - yy),
-         SH_C3[3] * z * (2 * zz - 3 * xx - 3 * yy), SH_C3[4] * x * (4 * zz - xx - yy),
-         SH_C3[5] * z * (xx - yy), SH_C3[6] * x * (xx - 3 * yy))
-    r = g = bl = 0.0
-    for i in range(sh.shape[0]):
-        r += b[i] * sh[i, 0]
-        g += b[i] * sh[i, 1]
-        bl += b[i] * sh[i, 2]
-    return max(r + 0.5, 0.0), max(g + 0.5, 0.0), max(bl + 0.5, 0.0)
+    v = SH_C0 * sh[i, 0, k]
+    if c > 1:
+        v += -SH_C1 * y * sh[i, 1, k] + SH_C1 * z * sh[i, 2, k] - SH_C1 * x * sh[i, 3, k]
+    if c > 4:
+        v += (SH_C2[0] * x * y * sh[i, 4, k] + SH_C2[1] * y * z * sh[i, 5, k]
+              + SH_C2[2] * (2 * zz - xx - yy) * sh[i, 6, k] + SH_C2[3] * x * z * sh[i, 7, k]
+              + SH_C2[4] * (xx - yy) * sh[i, 8, k])
+    if c > 9:
+        v += (SH_C3[0] * y * (3 * xx - yy) * sh[i, 9, k] + SH_C3[1] * x * y * z * sh[i, 10, k]
+              + SH_C3[2] * y * (4 * zz - xx - yy) * sh[i, 11, k]
+              + SH_C3[3] * z * (2 * zz - 3 * xx - 3 * yy) * sh[i, 12, k]
+              + SH_C3[4] * x * (4 * zz - xx - yy) * sh[i, 13, k]
+              + SH_C3[5] * z * (xx - yy) * sh[i, 14, k] + SH_C3[6] * x * (xx - 3 * yy) * sh[i, 15, k])
+    return v

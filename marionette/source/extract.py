@@ -11,8 +11,10 @@ of frame 0:
    scale is unknowable);
 3. :func:`~marionette.source.rigid.fit_rigid`: per-frame pose by RANSAC PnP and
    bundle adjustment;
-4. :meth:`~marionette.prior.SpatPrior.from_poses`: steps ``R_t, δ_t`` from the
-   poses, the volume's centroid moved by them, and its radius.
+4. :func:`~marionette.source.rigid.carved_centroid`: the object's centre, from
+   the prior volume carved by all silhouettes;
+5. :meth:`~marionette.prior.SpatPrior.from_poses`: steps ``R_t, δ_t`` from the
+   poses, the centre moved by them, and the prior's radius (1 unit).
 
 Multi-part segmentation, camera-motion removal and automatic masks slot in
 before step 3 (one ``fit_rigid`` per part, on its tracks and mask).
@@ -30,12 +32,12 @@ import numpy as np
 
 from ..errors import InputError
 from ..prior import SpatPrior
-from .rigid import RigidOptions, ShapePrior, fit_rigid
+from .rigid import RigidOptions, ShapePrior, carved_centroid, fit_rigid
 from .tracks import Tracks, _check_video, track
 
 __all__ = ["ExtractOptions", "extract_prior"]
 
-METHOD = "lk-tracks+inflated-shape+pnp-ransac+bundle-adjustment"
+METHOD = "anchored-lk-tracks+inflated-shape+pnp-ransac+bundle-adjustment+carved-centre"
 
 
 @dataclass(frozen=True)
@@ -103,7 +105,9 @@ def extract_prior(frames: np.ndarray, masks: np.ndarray, camera_K: np.ndarray, f
     -------
     SpatPrior
         One part (K = 1); poses (1, T, 4, 4) in the camera frame of frame 0,
-        scale such that the object's RMS radius is ``radii[0]`` (= 1 unit).
+        in units where the object's shape prior has an RMS radius of
+        ``radii[0]`` = 1; centroids (1, T, 3) its carved centre moved by the
+        poses.
         Extras: ``tracks_uv`` (T, M, 2) float32, ``tracks_visible`` (T, M)
         bool, ``labels`` (H, W) int16 (0 on the frame-0 object, -1 elsewhere).
         Metadata: method, options, failed frames with reasons, track count,
@@ -112,8 +116,9 @@ def extract_prior(frames: np.ndarray, masks: np.ndarray, camera_K: np.ndarray, f
     Warns
     -----
     UserWarning
-        When nothing moves (identity prior returned) or when the pose of some
-        frames could not be estimated (they are interpolated).
+        When nothing moves or the object has too few trackable points (the
+        identity prior is returned), or when the pose of some frames could not
+        be estimated (they are interpolated).
     """
     frames, masks = _check_video(frames, masks)
     k = np.asarray(camera_K, dtype=np.float64) if isinstance(camera_K, (np.ndarray, list, tuple)) else None
@@ -145,11 +150,14 @@ def extract_prior(frames: np.ndarray, masks: np.ndarray, camera_K: np.ndarray, f
     common = dict(fps=fps, image_size=(w, h), intrinsics=k)
 
     motion = _motion_px(tracks)
-    if motion < options.motion_threshold:
-        warnings.warn(f"no motion detected (median track displacement {motion:.2f} px < "
-                      f"{options.motion_threshold} px): returning the identity prior", stacklevel=2)
+    few = tracks.num_tracks < options.rigid.min_points
+    if few or motion < options.motion_threshold:
+        reason = (f"only {tracks.num_tracks} trackable points on the object (too little texture, or a tiny mask)"
+                  if few else f"no motion detected (median track displacement {motion:.2f} px < "
+                  f"{options.motion_threshold} px)")
+        warnings.warn(f"{reason}: returning the identity prior", stacklevel=2)
         timings["total"] = time.perf_counter() - t0
-        metadata.update(failed_frames={}, no_motion=True, motion_px=motion)
+        metadata.update(failed_frames={}, no_motion=not few, motion_px=motion)
         prior = SpatPrior.identity(num_frames, centroid=shape.centroid, radius=shape.radius,
                                    metadata=metadata, **common)
         if progress is not None:
@@ -158,6 +166,10 @@ def extract_prior(frames: np.ndarray, masks: np.ndarray, camera_K: np.ndarray, f
 
     fit = fit_rigid(tracks, shape, options=options.rigid, progress=stage(num_frames - 1))
     timings.update(fit.timings)
+    t2 = time.perf_counter()
+    good = np.array([t for t in range(num_frames) if t not in fit.failed_frames])
+    centre = carved_centroid(shape, masks, fit.poses, good)
+    timings["centre"] = time.perf_counter() - t2
     timings["total"] = time.perf_counter() - t0
     if fit.failed_frames:
         listed = ", ".join(str(t) for t in list(fit.failed_frames)[:10])
@@ -166,7 +178,7 @@ def extract_prior(frames: np.ndarray, masks: np.ndarray, camera_K: np.ndarray, f
                       f"({listed}{more}); their poses are interpolated (see metadata 'failed_frames')",
                       stacklevel=2)
     poses = fit.poses[None]  # (1, T, 4, 4)
-    centroids = poses[..., :3, :3] @ shape.centroid + poses[..., :3, 3]  # (1, T, 3)
+    centroids = poses[..., :3, :3] @ centre + poses[..., :3, 3]  # (1, T, 3)
     metadata.update(failed_frames={str(t): r for t, r in fit.failed_frames.items()}, no_motion=False,
                     motion_px=motion, reprojection_rms_px=fit.reprojection_rms,
                     inlier_tracks=int(fit.inliers.any(axis=0).sum()))

@@ -16,10 +16,10 @@ the rigidity itself, the classical structure-from-motion route:
 2. **Sequential PnP.** Tracks alive at frame 0 are lifted onto the volume's
    front surface. At each frame t the pose follows from the lifted tracks
    visible at t by RANSAC PnP (``cv2.solvePnPRansac``, started from the pose
-   at t-1) and Levenberg–Marquardt refinement on the inliers
-   (``cv2.solvePnPRefineLM``). Tracks first seen at t (re-seeded on surface
-   that turned into view) are then lifted by casting their pixel ray into
-   the volume moved by the pose at t, so they carry the pose once the
+   predicted at constant velocity) and Levenberg–Marquardt refinement on the
+   inliers (``cv2.solvePnPRefineLM``). Tracks first seen at t (re-seeded on
+   surface that turned into view) are then lifted by casting their pixel ray
+   into the volume moved by the pose at t, so they carry the pose once the
    frame-0 surface has turned away.
 3. **Joint refinement.** A sparse bundle adjustment (Triggs et al., "Bundle
    adjustment — a modern synthesis", 1999) over all poses and a subset of the
@@ -27,12 +27,20 @@ the rigidity itself, the classical structure-from-motion route:
    near its lifted value (this also fixes the scale gauge). Where the object
    turns out of plane, parallax corrects the guessed shape and the poses with
    it; where it does not (translation, in-plane rotation) the shape stays
-   the prior's and is irrelevant to the motion anyway.
+   the prior's and is irrelevant to the motion anyway. It runs every
+   ``refine_every`` frames on the frames so far (so that the next PnP uses
+   corrected points) and over the whole clip at the end, where tracks are
+   then cut where they start to disagree with the fit (drift) and it runs
+   once more.
+4. **Centre.** :func:`carved_centroid` carves the prior volume with the
+   silhouettes of all frames under the fitted poses; its centroid is the
+   body's centre (what the SpaT prior rotates parts about).
 
 Frames where the pose cannot be estimated (fewer than ``min_points`` tracks
 or inliers) are expected outcomes, not errors: they are interpolated between
 the nearest good frames (held after the last one) and reported with a reason
-in ``RigidFit.failed_frames``.
+in ``RigidFit.failed_frames``. Tracks born at such a frame are lifted with the
+pose predicted there, so that the frames after an occlusion can recover.
 
 Poses map points of the body at frame 0, expressed in the camera frame of
 frame 0, to the camera frame of frame t (``X_t = R X_0 + t``); with a static
@@ -47,14 +55,12 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-import scipy.linalg
 from scipy.spatial import cKDTree
 
-from ..geometry import (axis_angle_to_matrix, invert_transform, make_transform, matrix_to_axis_angle,
-                        se3_interpolate, transform_points)
+from ..geometry import axis_angle_to_matrix, invert_transform, make_transform, se3_interpolate, transform_points
 from .tracks import Tracks
 
-__all__ = ["ShapePrior", "RigidOptions", "RigidFit", "fit_rigid"]
+__all__ = ["ShapePrior", "RigidOptions", "RigidFit", "fit_rigid", "carved_centroid"]
 
 # Ray-casting: samples along each ray through the volume's depth range, then
 # bisection steps on the first entry (each halves a step of ~3 % of the radius).
@@ -208,6 +214,57 @@ class ShapePrior:
         return out
 
 
+def carved_centroid(shape: ShapePrior, masks: np.ndarray, poses: np.ndarray, frames: np.ndarray, *,
+                    tolerance: int = 2, agreement: float = 0.95, depth_samples: int = 24,
+                    max_rays: int = 8000) -> np.ndarray:
+    """Centroid of the prior volume carved by the silhouettes of the other frames (visual hull).
+
+    The inflated prior guesses the hidden back of the body. Once the body has
+    turned, the masks of later frames say where it is not (Laurentini, "The
+    visual hull concept", PAMI 1994): samples of the prior volume (up to
+    ``max_rays`` frame-0 pixel rays, ``depth_samples`` per ray) are kept when
+    they project inside the mask (dilated by ``tolerance`` pixels) at no
+    fewer than ``agreement`` of ``frames``, and their volume-weighted mean
+    (``z² dz`` per sample, the frustum element) is the centroid. Without
+    out-of-plane motion nothing is carved and this is the prior's centroid.
+
+    Parameters
+    ----------
+    shape : ShapePrior
+    masks : (T, H, W) bool
+    poses : (T, 4, 4) body poses, frame 0 → t
+    frames : (F,) int
+        Frames whose pose is trusted.
+
+    Returns
+    -------
+    (3,) float64, in camera-frame-0 coordinates; the prior's centroid if carving removes everything.
+    """
+    v, u = np.nonzero(np.isfinite(shape.front))
+    stride = max(1, int(np.ceil(np.sqrt(len(v) / max_rays))))
+    keep = (v % stride == 0) & (u % stride == 0)
+    v, u = v[keep], u[keep]
+    front, back = shape.front[v, u], shape.back[v, u]
+    frac = (np.arange(depth_samples) + 0.5) / depth_samples
+    z = front[:, None] + (back - front)[:, None] * frac[None]  # (R, L)
+    points = (_rays(shape.K, np.column_stack([u, v]).astype(np.float64))[:, None] * z[..., None]).reshape(-1, 3)
+    weight = (z**2 * (back - front)[:, None]).ravel()
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * tolerance + 1,) * 2)
+    h, w = masks.shape[1:]
+    votes = np.zeros(len(points))
+    for t in frames:
+        wide = cv2.dilate(masks[t].astype(np.uint8), kernel).astype(bool)
+        cam = transform_points(poses[t], points)
+        pix = np.rint(_project(shape.K, cam)).astype(np.int64)
+        inside = (cam[:, 2] > 0) & (pix[:, 0] >= 0) & (pix[:, 0] < w) & (pix[:, 1] >= 0) & (pix[:, 1] < h)
+        inside[inside] = wide[pix[inside, 1], pix[inside, 0]]
+        votes += inside
+    kept = votes >= agreement * len(frames)
+    if not kept.any():
+        return shape.centroid.copy()
+    return (weight[kept] @ points[kept]) / weight[kept].sum()
+
+
 @dataclass(frozen=True)
 class RigidOptions:
     """Settings of :func:`fit_rigid`.
@@ -223,16 +280,28 @@ class RigidOptions:
         the frame is reported as failed and interpolated. 6 is the minimum of
         the linear (DLT) PnP solution.
     refine : bool
-        Run the joint refinement (bundle adjustment) after the sequential pass.
+        Run the joint refinement (bundle adjustment); off, the poses are the
+        sequential PnP's.
+    refine_every : int
+        Also refine all frames so far every this many frames during the
+        sequential pass (0: only at the end), so that errors of the guessed
+        shape are corrected before they steer the next poses.
     refine_tracks : int
-        At most this many tracks, drawn at random, enter the refinement; a
-        few hundred constrain 6-DoF poses well and keep it to about a second.
+        About this many tracks, drawn at random (plus the longest ones where
+        a frame has fewer than 30), enter the refinement; a few hundred
+        constrain 6-DoF poses well and keep it to about a second.
     refine_loss_scale : float
         Huber loss scale in pixels: residuals above it count linearly.
+    prune_threshold : float
+        After a first refinement, each track is cut from the first frame where
+        its reprojection error exceeds this many pixels, or 4 σ of the
+        residuals if that is larger (LK tracks drift rather than jump, so what
+        follows is suspect too), and the refinement runs again. 0 disables it.
     depth_prior_weight : float
         A point whose depth moves by one radius away from its lifted value
         costs as much as this many pixels of reprojection error in one frame.
-        Weak on purpose: it only decides what the tracks cannot.
+        Weak on purpose: it only decides what the tracks cannot (and fixes
+        the scale); at 1 it already biases in-plane rotations by ~0.2°.
     seed : int
         Seed of the refinement's track sample.
     """
@@ -241,9 +310,11 @@ class RigidOptions:
     ransac_iterations: int = 200
     min_points: int = 6
     refine: bool = True
+    refine_every: int = 8
     refine_tracks: int = 400
     refine_loss_scale: float = 1.0
-    depth_prior_weight: float = 1.0
+    prune_threshold: float = 1.0
+    depth_prior_weight: float = 0.1
     seed: int = 0
 
 
@@ -309,6 +380,14 @@ def _lift_by_neighbours(uv: np.ndarray, known_uv: np.ndarray, known_depth: np.nd
     return transform_points(invert_transform(pose), _rays(k, uv) * depth[:, None])
 
 
+def _extrapolate(poses: np.ndarray, good: list[int], t: int) -> np.ndarray:
+    """Pose (4, 4) at frame t from the last two good frames' poses at constant velocity (held with one)."""
+    if len(good) < 2:
+        return poses[good[-1]].copy()
+    a, b = good[-2], good[-1]
+    return se3_interpolate(poses[a], poses[b], (t - a) / (b - a))
+
+
 def _fill_failed(poses: np.ndarray, failed: dict[int, str]) -> np.ndarray:
     """Interpolate failed frames' poses (T, 4, 4) in SE(3) between good neighbours; hold after the last."""
     good = np.array([t for t in range(len(poses)) if t not in failed])
@@ -337,13 +416,14 @@ def _huber_weights(norms: np.ndarray, scale: float) -> tuple[np.ndarray, float]:
     return np.where(big, scale / np.maximum(norms, 1e-300), 1.0), float(cost)
 
 
-def _bundle_adjust(tracks: Tracks, k: np.ndarray, poses: np.ndarray, points: np.ndarray,
-                   directions: np.ndarray, chosen: np.ndarray, free: np.ndarray, radius: float,
-                   options: RigidOptions, iterations: int = 30) -> tuple[np.ndarray, np.ndarray]:
-    """Jointly refine the poses of frames ``free`` (F,) and the points of tracks ``chosen`` (N,).
+def _bundle_adjust(observed: np.ndarray, uv: np.ndarray, k: np.ndarray, poses: np.ndarray, points: np.ndarray,
+                   directions: np.ndarray, free: np.ndarray, radius: float, options: RigidOptions,
+                   iterations: int = 30) -> tuple[np.ndarray, np.ndarray]:
+    """Jointly refine the poses of frames ``free`` (F,) and N points (N, 3) observed at ``uv`` (T, N, 2).
 
-    Minimises the Huber cost of the reprojection errors (pixels) of every
-    observation of the chosen tracks at frame 0 and the free frames, plus
+    Minimises the Huber cost of the reprojection errors (pixels) of the
+    observations marked in ``observed`` (T, N) bool at frame 0 and the free
+    frames, plus
     ``(depth_prior_weight * n·(X - X_lift) / radius)²`` per point, with ``n``
     (N, 3) the point's unit lifting ray in body coordinates. Levenberg–
     Marquardt with iteratively reweighted Gauss–Newton steps, solved by the
@@ -351,20 +431,20 @@ def _bundle_adjust(tracks: Tracks, k: np.ndarray, poses: np.ndarray, points: np.
     blocks (3x3 each) are eliminated and the reduced (6F, 6F) pose system is
     solved densely. Poses are updated as ``R ← exp(ω) R, t ← t + δt``.
 
-    Returns refined poses (T, 4, 4) (frame 0 and failed frames unchanged) and points (N, 3).
+    Returns refined poses (T, 4, 4) (other frames unchanged) and points (N, 3).
     """
     num_frames = len(poses)
-    f_count, n_count = len(free), len(chosen)
+    f_count, n_count = len(free), len(points)
     slot = np.full(num_frames, -1)
     slot[free] = np.arange(f_count)
     pose_known = slot >= 0
     pose_known[0] = True
-    obs_t, obs_i = np.nonzero(tracks.visible[:, chosen] & pose_known[:, None])  # (O,) frame and point
-    obs_uv = tracks.uv[obs_t, chosen[obs_i]].astype(np.float64)  # (O, 2)
+    obs_t, obs_i = np.nonzero(observed & pose_known[:, None])  # (O,) frame and point
+    obs_uv = uv[obs_t, obs_i].astype(np.float64)  # (O, 2)
     obs_slot = slot[obs_t]
     moving = obs_slot >= 0  # observations whose pose is a variable
     fxy = np.array([k[0, 0], k[1, 1]])
-    x_lift = points[chosen].copy()
+    x_lift = points.copy()
     prior_w = options.depth_prior_weight / radius
 
     def evaluate(rot: np.ndarray, trans: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -375,7 +455,7 @@ def _bundle_adjust(tracks: Tracks, k: np.ndarray, poses: np.ndarray, points: np.
         weights, cost = _huber_weights(np.linalg.norm(err, axis=1), options.refine_loss_scale)
         return rx, cam, err, prior, weights, cost + float(prior @ prior)
 
-    rot, trans, pts = poses[:, :3, :3].copy(), poses[:, :3, 3].copy(), points[chosen].copy()
+    rot, trans, pts = poses[:, :3, :3].copy(), poses[:, :3, 3].copy(), points.copy()
     rx, cam, err, prior, weights, cost = evaluate(rot, trans, pts)
     damping = 1e-3
     for _ in range(iterations):
@@ -404,14 +484,17 @@ def _bundle_adjust(tracks: Tracks, k: np.ndarray, poses: np.ndarray, points: np.
         b_dense = np.zeros((n_count, f_count, 6, 3))
         b_dense[obs_i[moving], obs_slot[moving]] = b
         b_dense = b_dense.reshape(n_count, 6 * f_count, 3)
-        while True:
+        diag = (6 * np.arange(f_count)[:, None, None] + np.arange(6)[None, :, None],
+                6 * np.arange(f_count)[:, None, None] + np.arange(6)[None, None, :])
+        while damping <= 1e8:
             a_d = a + damping * (np.einsum("fii->fi", a)[:, :, None] * np.eye(6) + 1e-9 * np.eye(6))
             c_d = c + damping * (np.einsum("nii->ni", c)[:, :, None] * np.eye(3) + 1e-9 * np.eye(3))
             c_inv = np.linalg.inv(c_d)
             e = b_dense @ c_inv  # (N, 6F, 3) = B C⁻¹ per point
             # Reduced system S = A - Σ_n E_n B_nᵀ, r = g - Σ_n E_n h_n.
-            s_mat = scipy.linalg.block_diag(*a_d) - e.transpose(1, 0, 2).reshape(6 * f_count, -1) @ \
-                b_dense.transpose(0, 2, 1).reshape(-1, 6 * f_count)
+            s_mat = -(e.transpose(1, 0, 2).reshape(6 * f_count, -1)
+                      @ b_dense.transpose(0, 2, 1).reshape(-1, 6 * f_count))
+            s_mat[diag] += a_d
             r_vec = g.ravel() - np.einsum("nfk,nk->f", e, h)
             try:
                 d_pose = -np.linalg.solve(s_mat, r_vec).reshape(f_count, 6)
@@ -426,18 +509,70 @@ def _bundle_adjust(tracks: Tracks, k: np.ndarray, poses: np.ndarray, points: np.
             if np.all(trial[1][:, 2] > 0) and trial[-1] <= cost:
                 break
             damping *= 10
-            if damping > 1e8:
-                break
-        if damping > 1e8:
-            break
+        else:
+            break  # no damped step lowers the cost: converged
         improvement = (cost - trial[-1]) / max(cost, 1e-300)
         rot, trans, pts = new_rot, new_trans, pts + d_point
         rx, cam, err, prior, weights, cost = trial
         damping = max(damping / 10, 1e-7)
-        print('DBG', cost, damping, np.median(np.linalg.norm(err,axis=1)))
         if improvement < 1e-6:
             break
     return make_transform(rot, trans), pts
+
+
+def _choose_tracks(visible: np.ndarray, count: int, seed: int, ids: np.ndarray, per_frame: int = 30) -> np.ndarray:
+    """Pick about ``count`` of the tracks ``ids`` (M,) with visibility (T, M) for the bundle adjustment.
+
+    A random sample, topped up with the longest remaining tracks at frames
+    where it has fewer than ``per_frame`` (or all there are): those carry the
+    poses across occlusions and turns, where few tracks live. Returns sorted ids.
+    """
+    rng = np.random.default_rng(seed)
+    pick = np.zeros(len(ids), bool)
+    pick[rng.choice(len(ids), min(count, len(ids)), replace=False)] = True
+    length = visible.sum(axis=0)
+    for t in range(len(visible)):
+        need = min(per_frame, visible[t].sum()) - (visible[t] & pick).sum()
+        if need > 0:
+            spare = np.nonzero(visible[t] & ~pick)[0]
+            pick[spare[np.argsort(-length[spare], kind="stable")[:need]]] = True
+    return ids[pick]
+
+
+def _refine_points(observed: np.ndarray, uv: np.ndarray, k: np.ndarray, poses: np.ndarray, points: np.ndarray,
+                   loss_scale: float, iterations: int = 5) -> np.ndarray:
+    """Gauss–Newton on each point (N, 3) alone, poses (T, 4, 4) fixed, Huber-weighted; observed (T, N), uv (T, N, 2)."""
+    obs_t, obs_i = np.nonzero(observed)
+    fxy = np.array([k[0, 0], k[1, 1]])
+    pts = points.copy()
+    for _ in range(iterations):
+        cam = np.einsum("oij,oj->oi", poses[obs_t, :3, :3], pts[obs_i]) + poses[obs_t, :3, 3]
+        z = cam[:, 2]
+        err = _project(k, cam) - uv[obs_t, obs_i]
+        weights, _ = _huber_weights(np.linalg.norm(err, axis=1), loss_scale)
+        j_proj = np.zeros((len(z), 2, 3))
+        j_proj[:, 0, 0], j_proj[:, 1, 1] = fxy[0] / z, fxy[1] / z
+        j_proj[:, :, 2] = -fxy * cam[:, :2] / z[:, None] ** 2
+        j = j_proj @ poses[obs_t, :3, :3]  # (O, 2, 3)
+        c = np.zeros((len(pts), 3, 3))
+        h = np.zeros((len(pts), 3))
+        np.add.at(c, obs_i, weights[:, None, None] * np.einsum("oki,okj->oij", j, j))
+        np.add.at(h, obs_i, weights[:, None] * np.einsum("oki,ok->oi", j, err))
+        # A point seen from one direction only is known along its ray only as well as its lift: damp.
+        c += 1e-6 * np.trace(c, axis1=1, axis2=2)[:, None, None] * np.eye(3) + 1e-12 * np.eye(3)
+        pts -= np.linalg.solve(c, h[..., None])[..., 0]
+    return pts
+
+
+def _reprojection_errors(k: np.ndarray, poses: np.ndarray, points: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Pixel distances (T, N) between points (N, 3) moved by poses (T, 4, 4) and observations uv (T, N, 2).
+
+    Infinite where a point is unknown (NaN), behind the camera or unobserved.
+    """
+    cam = np.einsum("tij,nj->tni", poses[:, :3, :3], points) + poses[:, None, :3, 3]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        err = np.linalg.norm(cam[..., :2] / cam[..., 2:] * [k[0, 0], k[1, 1]] + [k[0, 2], k[1, 2]] - uv, axis=2)
+    return np.where(np.isfinite(err) & (cam[..., 2] > 0), err, np.inf)
 
 
 def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = RigidOptions(),
@@ -484,34 +619,61 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
         ray = lifted - centre
         directions[new] = ray / np.linalg.norm(ray, axis=1, keepdims=True)
 
+    def refine(upto: int, final: bool) -> None:
+        """Bundle-adjust frames 0..upto, then fit the other lifted points to the new poses."""
+        known = np.arange(num_frames) <= upto
+        known[list(failed)] = False
+        free = np.nonzero(known)[0][1:]
+        seen = tracks.visible & known[:, None]
+        lifted = np.nonzero(np.isfinite(points[:, 0]) & (seen.sum(axis=0) >= 2))[0]
+        if not len(free) or len(lifted) < options.min_points:
+            return
+        chosen = _choose_tracks(seen[:, lifted], options.refine_tracks, options.seed, lifted)
+        observed = seen[:, chosen]
+        iterations = 30 if final else 10
+        poses[:], points[chosen] = _bundle_adjust(observed, uv[:, chosen], k, poses, points[chosen],
+                                                  directions[chosen], free, shape.radius, options, iterations)
+        if final and options.prune_threshold > 0:
+            # Tracks drift rather than jump: drop each one from its first frame past the gate on.
+            err = _reprojection_errors(k, poses, points[chosen], uv[:, chosen])
+            # 3.4 median residuals is 4 σ for Gaussian pixel noise (Rayleigh norms).
+            gate = max(options.prune_threshold, 3.4 * float(np.median(err[observed])))
+            observed &= np.cumsum(observed & (err > gate), axis=0) == 0
+            poses[:], points[chosen] = _bundle_adjust(observed, uv[:, chosen], k, poses, points[chosen],
+                                                      directions[chosen], free, shape.radius, options)
+        rest = np.setdiff1d(lifted, chosen)
+        points[rest] = _refine_points(seen[:, rest], uv[:, rest], k, poses, points[rest], options.refine_loss_scale)
+
     lift(0, poses[0])
     inliers[0] = tracks.visible[0] & np.isfinite(points[:, 0])
-    last = poses[0]
+    good = [0]
+    t_refine = 0.0
     for t in range(1, num_frames):
         usable = np.nonzero(tracks.visible[t] & np.isfinite(points[:, 0]))[0]
+        guess = _extrapolate(poses, good, t)
         if len(usable) < options.min_points:
             failed[t] = f"{len(usable)} lifted tracks visible, need {options.min_points}"
         else:
-            pose, inl, reason = _pnp(points[usable], uv[t, usable], k, last, options)
+            pose, inl, reason = _pnp(points[usable], uv[t, usable], k, guess, options)
             if pose is None:
                 failed[t] = reason
             else:
-                poses[t] = last = pose
                 inliers[t, usable[inl]] = True
-                lift(t, pose)
-        if t in failed:
-            poses[t] = last
+                good.append(t)
+        poses[t] = guess if t in failed else pose
+        # Also at a failed frame (with the predicted pose): tracks born there
+        # are what lets the next frames recover.
+        lift(t, poses[t])
+        if options.refine and options.refine_every and t % options.refine_every == 0 and t < num_frames - 1:
+            # Incremental: the guessed shape is corrected before errors in it steer the next poses.
+            t0 = time.perf_counter()
+            refine(t, final=False)
+            t_refine += time.perf_counter() - t0
         if progress is not None:
             progress(t, num_frames)
     t_pose = time.perf_counter()
-
-    free = np.array([t for t in range(1, num_frames) if t not in failed], dtype=np.int64)
-    lifted = np.nonzero(np.isfinite(points[:, 0]) & (tracks.visible.sum(axis=0) >= 2))[0]
-    if options.refine and len(free) and len(lifted) >= options.min_points:
-        rng = np.random.default_rng(options.seed)
-        chosen = np.sort(rng.choice(lifted, min(options.refine_tracks, len(lifted)), replace=False))
-        poses, points[chosen] = _bundle_adjust(tracks, k, poses, points, directions[chosen], chosen, free,
-                                               shape.radius, options)
+    if options.refine:
+        refine(num_frames - 1, final=True)
     if failed:
         poses = _fill_failed(poses, failed)
     poses[0] = np.eye(4)
@@ -519,12 +681,9 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
         progress(num_frames, num_frames)
 
     # Final inliers of every lifted track under the final poses.
-    cam = np.einsum("tij,mj->tmi", poses[:, :3, :3], np.nan_to_num(points)) + poses[:, None, :3, 3]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        err = np.linalg.norm(cam[..., :2] / cam[..., 2:] * [k[0, 0], k[1, 1]] + [k[0, 2], k[1, 2]] - uv, axis=2)
-    ok = tracks.visible & np.isfinite(points[:, 0])[None] & (cam[..., 2] > 0)
-    inliers = ok & (np.nan_to_num(err, nan=np.inf) <= options.ransac_threshold)
+    err = _reprojection_errors(k, poses, points, uv)
+    inliers = tracks.visible & (err <= options.ransac_threshold)
     rms = float(np.sqrt(np.mean(err[inliers] ** 2))) if inliers.any() else float("nan")
-    timings = {"pose": t_pose - t_start, "refine": time.perf_counter() - t_pose}
+    timings = {"pose": t_pose - t_start - t_refine, "refine": time.perf_counter() - t_pose + t_refine}
     return RigidFit(poses=poses, points=points, inliers=inliers, failed_frames=dict(sorted(failed.items())),
                     reprojection_rms=rms, timings=timings)
