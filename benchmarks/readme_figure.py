@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from marionette import pipeline
+from marionette.camera import Camera
 from marionette.io import read_video, write_image
 from marionette.progress import Reporter
 
@@ -45,10 +46,16 @@ def main() -> None:
     src = DATA / "videos" / args.source
     reporter = Reporter()
     prior = pipeline.extract(src / "frames", masks=src / "masks", reporter=reporter)
-    target = pipeline.load_target(DATA / "images" / args.target)
+    target = pipeline.load_target(DATA / "images" / args.target, prior=prior)
     trajectory = pipeline.transfer(prior, target)
-    frames = list(pipeline.render_frames(target.gaussians, trajectory, target.camera))
+    # Show the result on a canvas of the source's aspect ratio, framed to keep it in view.
     source = read_video(src / "frames").frames
+    cam = target.camera
+    width = int(round(cam.height * source.shape[2] / source.shape[1]))
+    k = cam.K.copy()
+    k[0, 2] += (width - cam.width) / 2
+    camera = pipeline.fit_view(Camera(k, cam.world_to_camera, width, cam.height), trajectory)
+    frames = list(pipeline.render_frames(target.gaussians, trajectory, camera))
     picks = np.linspace(0, len(frames) - 1, 5).round().astype(int)
     sheet = contact_sheet([[source[i] for i in picks], [frames[i] for i in picks]])
     write_image(args.output, sheet)

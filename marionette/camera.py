@@ -70,7 +70,13 @@ class Camera:
     def from_fov(width: int, height: int, fov_deg: float = 60.0,
                  world_to_camera: np.ndarray | None = None) -> "Camera":
         """A centred camera with the given horizontal field of view."""
-        f = focal_from_fov(width, fov_deg)
+        return Camera.from_focal(width, height, focal_from_fov(width, fov_deg), world_to_camera)
+
+    @staticmethod
+    def from_focal(width: int, height: int, focal: float,
+                   world_to_camera: np.ndarray | None = None) -> "Camera":
+        """A centred camera with square pixels of focal length ``focal`` (pixels)."""
+        f = float(focal)
         k = np.array([[f, 0, (width - 1) / 2], [0, f, (height - 1) / 2], [0, 0, 1]])
         return Camera(k, np.eye(4) if world_to_camera is None else world_to_camera, width, height)
 
@@ -116,6 +122,33 @@ class Camera:
         k[0, 2] = (k[0, 2] + 0.5) * sx - 0.5
         k[1, 2] = (k[1, 2] + 0.5) * sy - 0.5
         return replace(self, K=k, width=width, height=height)
+
+    def framing(self, points: np.ndarray, margin: float = 0.06) -> "Camera":
+        """This camera zoomed out and re-centred just enough to keep ``points`` in view.
+
+        ``points`` (M, 3) in world coordinates (e.g. every frame of a
+        trajectory); those behind the camera are ignored. The focal length only
+        ever shrinks, and the principal point moves as little as needed to
+        keep every point ``margin`` (a fraction of the image side) inside.
+        """
+        pc = self.world_to_camera_points(np.asarray(points, dtype=np.float64))
+        pc = pc[pc[:, 2] > 1e-9]
+        if not len(pc):
+            return self
+        n = pc[:, :2] / pc[:, 2:3]  # normalised image coordinates
+        lo, hi = n.min(axis=0), n.max(axis=0)
+        f = np.array([self.fx, self.fy])
+        room = np.array([self.width, self.height]) * (1.0 - 2.0 * margin)
+        zoom = float(min(1.0, *(room / np.maximum(f * (hi - lo), 1e-12))))
+        f = f * zoom
+        c = np.array([self.cx, self.cy])
+        size = np.array([self.width, self.height])
+        # Principal points that keep [lo, hi] inside; take the one nearest the current.
+        c_min = size * margin - f * lo
+        c_max = size * (1.0 - margin) - f * hi
+        c = np.clip(c, np.minimum(c_min, c_max), np.maximum(c_min, c_max))
+        k = np.array([[f[0], 0, c[0]], [0, f[1], c[1]], [0, 0, 1.0]])
+        return replace(self, K=k)
 
     def with_pose(self, world_to_camera: np.ndarray) -> "Camera":
         return replace(self, world_to_camera=np.asarray(world_to_camera, dtype=np.float64))

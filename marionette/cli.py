@@ -108,9 +108,10 @@ def extract(source: Annotated[Path, typer.Argument(help="Video file or folder of
 
 
 def _transfer_and_render(prior, target: Path, output: Path, frames, speed, fps, background, size, reporter) -> None:
-    lifted = pipeline.load_target(target, size=size)
+    lifted = pipeline.load_target(target, size=size, prior=prior)
     trajectory = pipeline.transfer(prior, lifted, frames=frames, speed=speed)
-    pipeline.render_video(output, lifted.gaussians, trajectory, lifted.camera, fps=fps or prior.fps,
+    camera = pipeline.fit_view(lifted.camera, trajectory)
+    pipeline.render_video(output, lifted.gaussians, trajectory, camera, fps=fps or prior.fps,
                           background=background, reporter=reporter)
 
 

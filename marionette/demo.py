@@ -8,12 +8,12 @@ from pathlib import Path
 import numpy as np
 
 from .io import write_image, write_prior, write_video
-from .pipeline import render_frames, side_by_side, transfer
+from .pipeline import fit_view, relative_depth, render_frames, side_by_side, transfer
 from .progress import Reporter
 from .render import render
 from .source import extract_prior
 from .synthetic import make_scene, render_object_image
-from .target.lift import lift_image
+from .target.lift import LiftOptions, lift_image
 
 __all__ = ["run_demo"]
 
@@ -45,13 +45,14 @@ def run_demo(out_dir: str | Path, *, reporter: Reporter | None = None, seed: int
     target_rgba = render_object_image("hinge", size=(256, 256), seed=seed + 1)
     write_image(paths["target"], target_rgba)
     with reporter.stage("lifting target", 1) as progress:
-        target = lift_image(target_rgba)
+        target = lift_image(target_rgba, options=LiftOptions(relative_depth=relative_depth(prior)))
         progress(1, 1)
     # Warm the rasterizer's compiled kernels before the timed loop shows its bar.
     render(target.gaussians.subset(np.arange(1)), target.camera)
     trajectory = transfer(prior, target)
     with reporter.stage("rendering", trajectory.num_frames) as progress:
-        frames = list(render_frames(target.gaussians, trajectory, target.camera, progress=progress))
+        frames = list(render_frames(target.gaussians, trajectory, fit_view(target.camera, trajectory),
+                                    progress=progress))
     write_video(paths["result"], frames, prior.fps)
     write_video(paths["side_by_side"], side_by_side(scene.frames, frames), prior.fps)
     reporter.message(f"demo finished in {time.perf_counter() - start:.1f} s; outputs in {out}/")

@@ -8,6 +8,7 @@ trajectory), ``render_video`` (trajectory → video file).
 from __future__ import annotations
 
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -27,7 +28,7 @@ from .transfer.controls import retime
 from .transfer.parts import labels_from_layout
 from .transfer.velocity import integrate
 
-__all__ = ["extract", "load_target", "transfer", "render_frames", "render_video", "side_by_side",
+__all__ = ["extract", "load_target", "relative_depth", "transfer", "fit_view", "render_frames", "render_video", "side_by_side",
            "source_intrinsics", "DEFAULT_MAX_SIDE"]
 
 #: Long side above which source frames are downscaled (intrinsics follow).
@@ -71,12 +72,25 @@ def _camera_for_splats(gaussians: Gaussians, width: int, height: int) -> Camera:
     return cam.with_pose(np.array([[1, 0, 0, -c[0]], [0, 1, 0, -c[1]], [0, 0, 1, -c[2] + dist], [0, 0, 0, 1.0]]))
 
 
+def relative_depth(prior: SpatPrior, limits: tuple[float, float] = (2.0, 200.0)) -> float:
+    """Source camera distance over object radius at frame 0, clipped to ``limits``.
+
+    Lifting the target at the same relative depth gives it the source's
+    perspective, so motion toward the camera grows it on screen as it grew
+    the source instead of carrying it past the camera.
+    """
+    centre = prior.centroids[:, 0].mean(axis=0)
+    return float(np.clip(np.linalg.norm(centre) / prior.radii.max(), *limits))
+
+
 def load_target(target: str | Path, *, size: tuple[int, int] | None = None,
-                options: LiftOptions = LiftOptions()) -> LiftedTarget:
+                options: LiftOptions = LiftOptions(), prior: SpatPrior | None = None) -> LiftedTarget:
     """Target image (RGB/RGBA) or 3DGS ``.ply`` → Gaussians with a reference camera.
 
-    A ``.ply`` is taken as it is and viewed from the front (along +z) at
-    ``size`` (512x512 by default).
+    With a ``prior``, an image is lifted at the source's relative depth
+    (:func:`relative_depth`) unless ``options`` sets one. A ``.ply`` is taken
+    as it is and viewed from the front (along +z) at ``size`` (512x512 by
+    default).
     """
     path = Path(target)
     if path.suffix.lower() == ".ply":
@@ -91,13 +105,22 @@ def load_target(target: str | Path, *, size: tuple[int, int] | None = None,
     image = read_image(path)
     if size is not None and (image.shape[1], image.shape[0]) != tuple(size):
         image = cv2.resize(image, tuple(size), interpolation=cv2.INTER_AREA)
+    if prior is not None and options.relative_depth is None:
+        options = replace(options, relative_depth=relative_depth(prior))
     return lift_image(image, options=options)
 
 
 def transfer(prior: SpatPrior, target: LiftedTarget, *, frames: int | None = None, speed: float = 1.0,
              anchor: str = "centroid") -> Trajectory:
-    """Move the target as the prior's parts move; (T, N, 3) trajectory out."""
+    """Move the target as the prior's parts move; (T, N, 3) trajectory out.
+
+    With ``anchor="centroid"`` the motion is taken as seen by a source camera
+    aimed at the object (:meth:`SpatPrior.aimed_at_object`), since the target
+    sits on its camera's axis.
+    """
     prior = retime(prior, speed=speed, frames=frames)
+    if anchor == "centroid":
+        prior = prior.aimed_at_object()
     if prior.num_parts == 1:
         labels = np.zeros(len(target.gaussians), np.int32)
     elif "labels" in prior.extras and np.ndim(prior.extras["labels"]) == 2:
@@ -105,6 +128,15 @@ def transfer(prior: SpatPrior, target: LiftedTarget, *, frames: int | None = Non
     else:
         labels = np.zeros(len(target.gaussians), np.int32)  # no layout stored: move as the largest part
     return integrate(target.gaussians.means, labels, prior, anchor=anchor)
+
+
+def fit_view(camera: Camera, trajectory: Trajectory, margin: float = 0.06, samples: int = 20000) -> Camera:
+    """The reference camera zoomed out and re-centred so the whole trajectory stays in frame.
+
+    A camera that already keeps every frame in view is returned unchanged.
+    """
+    step = max(1, trajectory.means.shape[1] // samples)
+    return camera.framing(trajectory.means[:, ::step].reshape(-1, 3), margin)
 
 
 def render_frames(gaussians: Gaussians, trajectory: Trajectory, camera: Camera,

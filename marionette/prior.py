@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import InputError
-from .geometry import invert_transform
+from .geometry import axis_angle_to_matrix, invert_transform
 
 __all__ = ["SpatPrior", "PRIOR_FORMAT", "PRIOR_VERSION"]
 
@@ -128,6 +128,33 @@ class SpatPrior:
         cent = np.tile(np.asarray(centroid, dtype=np.float64), (1, num_frames, 1))
         return SpatPrior.from_poses(poses, cent, np.array([radius]), fps=fps, image_size=image_size,
                                     intrinsics=intrinsics, metadata=metadata)
+
+    def in_view(self, rotation: np.ndarray) -> "SpatPrior":
+        """The same motion seen from the source camera turned by ``rotation`` (3, 3) about its centre.
+
+        Poses become ``C P C⁻¹`` with ``C = [rotation | 0]``; centroids turn
+        with the view. Image-space layouts in ``extras`` are kept as they are.
+        """
+        c = np.eye(4)
+        c[:3, :3] = rotation
+        return SpatPrior.from_poses(c @ self.poses @ c.T, self.centroids @ np.asarray(rotation).T, self.radii,
+                                    fps=self.fps, image_size=tuple(self.image_size), intrinsics=self.intrinsics,
+                                    extras=self.extras, metadata=self.metadata)
+
+    def aimed_at_object(self) -> "SpatPrior":
+        """The motion seen from the source camera turned to look straight at the object at frame 0.
+
+        A target photo is a straight view of its object; an object off the
+        source's optical axis moves differently on screen (perspective), so
+        its motion is re-expressed for a camera aimed at it (no roll).
+        """
+        d = self.centroids[:, 0].mean(axis=0)
+        d = d / max(np.linalg.norm(d), 1e-12)
+        axis = np.cross(d, [0.0, 0.0, 1.0])
+        angle = np.arctan2(np.linalg.norm(axis), d[2])
+        if np.linalg.norm(axis) < 1e-12:
+            return self
+        return self.in_view(axis_angle_to_matrix(axis / np.linalg.norm(axis) * angle))
 
     def metadata_json(self) -> str:
         return json.dumps(self.metadata, sort_keys=True)

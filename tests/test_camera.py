@@ -51,3 +51,18 @@ def test_not_json(tmp_path):
     path.write_text("{nope")
     with pytest.raises(InputError, match="not valid JSON"):
         Camera.load(path)
+
+
+def test_framing_keeps_points_in_view_and_leaves_fitting_views_alone():
+    cam = Camera.from_fov(200, 100, 60.0)
+    inside = np.array([[0.0, 0.0, 5.0], [0.5, 0.2, 5.0]])
+    assert np.array_equal(cam.framing(inside).K, cam.K)
+    # A path running far off to the left and nearer the camera.
+    path = np.array([[0.0, 0.0, 5.0], [-6.0, 0.5, 4.0], [-3.0, -1.0, 6.0]])
+    framed = cam.framing(path, margin=0.1)
+    uv, _ = framed.project(path)
+    assert np.all(uv[:, 0] >= 0.1 * 200 - 1e-6) and np.all(uv[:, 0] <= 0.9 * 200 + 1e-6)
+    assert np.all(uv[:, 1] >= 0.1 * 100 - 1e-6) and np.all(uv[:, 1] <= 0.9 * 100 + 1e-6)
+    assert framed.fx < cam.fx and framed.fx == framed.fy
+    # Zoomed out only as far as needed: the widest span fills the room exactly.
+    assert uv[:, 0].max() - uv[:, 0].min() == pytest.approx(0.8 * 200)

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+import stat
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -200,6 +203,15 @@ def test_write_is_atomic_and_checked(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["g.ply"]
     with pytest.raises(InputError, match="does not exist"):
         write_ply(tmp_path / "missing" / "g.ply", g)
+
+
+def test_written_files_get_the_umask_mode(tmp_path):
+    old = os.umask(0o022)
+    try:
+        write_ply(tmp_path / "g.ply", random_gaussians(3, 1))
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE((tmp_path / "g.ply").stat().st_mode) == 0o644
 
 
 @pytest.fixture(scope="module")

@@ -87,3 +87,17 @@ def test_reference_view_reproduces_the_image():
 def test_depth_for_radius_scales_with_focal():
     _, inside = disc_image()
     assert depth_for_radius(inside, 200.0) == pytest.approx(2 * depth_for_radius(inside, 100.0))
+
+
+def test_relative_depth_sets_distance_over_size():
+    img, _ = disc_image()
+    for ratio in (4.0, 25.0):
+        lifted = lift_image(img, options=LiftOptions(relative_depth=ratio))
+        m = lifted.gaussians.means.astype(np.float64)
+        c = m.mean(axis=0)
+        rms = np.sqrt(((m - c) ** 2).sum(axis=1).mean())
+        assert np.linalg.norm(c) / rms == pytest.approx(ratio, rel=0.05)
+        uv, _ = lifted.camera.project(lifted.gaussians.means)
+        assert np.abs(uv - lifted.pixel_of).max() < 1e-3  # still pixel-aligned
+    with pytest.raises(InputError, match="relative depth"):
+        lift_image(img, options=LiftOptions(relative_depth=-1.0))

@@ -73,3 +73,27 @@ def test_not_a_zip(tmp_path):
     (tmp_path / "x.npz").write_bytes(b"hello")
     with pytest.raises(InputError, match="not a readable"):
         read_prior(tmp_path / "x.npz")
+
+
+def test_in_view_conjugates_the_motion():
+    p = turning_prior()
+    turn = axis_angle_to_matrix([0.1, -0.3, 0.05])
+    q = p.in_view(turn)
+    pts = np.random.default_rng(0).normal(size=(10, 3))
+    for t in range(p.num_frames):
+        moved = pts @ p.poses[0, t, :3, :3].T + p.poses[0, t, :3, 3]
+        seen = (pts @ turn.T) @ q.poses[0, t, :3, :3].T + q.poses[0, t, :3, 3]
+        assert np.allclose(seen, moved @ turn.T)
+    assert np.allclose(q.centroids, p.centroids @ turn.T)
+
+
+def test_aimed_at_object_puts_the_first_centroid_on_the_axis():
+    p = turning_prior()
+    cents = p.centroids.copy()
+    cents[:, :, 0] = 3.0  # off to the right
+    off_axis = SpatPrior.from_poses(p.poses, cents, p.radii, fps=p.fps, image_size=(64, 48), intrinsics=np.eye(3))
+    aimed = off_axis.aimed_at_object()
+    c0 = aimed.centroids[:, 0].mean(axis=0)
+    assert np.allclose(c0[:2], 0, atol=1e-9) and c0[2] == pytest.approx(5.0)
+    # A pure turn: relative motion (angles, distances) is unchanged.
+    assert np.allclose(np.linalg.norm(aimed.translations, axis=-1), np.linalg.norm(off_axis.translations, axis=-1))

@@ -40,6 +40,12 @@ class LiftOptions:
         centroid, roughly); fixes the otherwise unknowable monocular scale.
     opacity : float
         Opacity of each Gaussian.
+    relative_depth : float or None
+        Camera distance over object radius. When set (and no camera is
+        given), the focal length is chosen so the object keeps its size in
+        the image at that distance: a source filmed from afar then drives a
+        target seen with the same perspective, so translations scaled by
+        object size move both alike on screen. None: ``fov_deg`` decides.
     """
 
     stride: int = 1
@@ -47,6 +53,7 @@ class LiftOptions:
     fov_deg: float = 60.0
     radius: float = 1.0
     opacity: float = 0.98
+    relative_depth: float | None = None
 
 
 @dataclass(frozen=True)
@@ -119,15 +126,19 @@ def inflate_silhouette(mask: np.ndarray) -> np.ndarray:
     return np.sqrt(np.clip(d * (2 * r - d), 0, None)) * mask
 
 
+def pixel_radius(mask: np.ndarray) -> float:
+    """RMS distance in pixels of the (H, W) mask's pixels to their centroid (at least 1)."""
+    v, u = np.nonzero(mask)
+    return max(float(np.sqrt(((u - u.mean()) ** 2 + (v - v.mean()) ** 2).mean())), 1.0)
+
+
 def depth_for_radius(mask: np.ndarray, focal: float, radius: float = 1.0) -> float:
     """Camera distance at which the masked object has RMS radius ``radius``.
 
     The RMS pixel distance of mask pixels to their centroid, times depth over
     focal, equals the object's RMS radius in the image plane.
     """
-    v, u = np.nonzero(mask)
-    r_pix = float(np.sqrt(((u - u.mean()) ** 2 + (v - v.mean()) ** 2).mean()))
-    return focal * radius / max(r_pix, 1.0)
+    return focal * radius / pixel_radius(mask)
 
 
 def lift_image(image: np.ndarray, *, mask: np.ndarray | None = None, camera: Camera | None = None,
@@ -149,6 +160,13 @@ def lift_image(image: np.ndarray, *, mask: np.ndarray | None = None, camera: Cam
         raise InputError(f"target mask is {mask.shape[1]}x{mask.shape[0]}, image is {w_img}x{h_img}")
     if not mask.any():
         raise InputError("target mask is empty")
+    if camera is None and options.relative_depth is not None:
+        if not (np.isfinite(options.relative_depth) and options.relative_depth > 0):
+            raise InputError(f"relative depth must be positive, got {options.relative_depth}")
+        # RMS radius of the inflated volume in pixel units: lateral spread plus relief.
+        relief = inflate_silhouette(mask)[mask] * options.thickness
+        r3 = np.sqrt(pixel_radius(mask) ** 2 + float((relief ** 2).mean()))
+        camera = Camera.from_focal(w_img, h_img, options.relative_depth * r3)
     camera = camera or Camera.from_fov(w_img, h_img, options.fov_deg)
     if (camera.width, camera.height) != (w_img, h_img):
         raise InputError("reference camera size differs from the target image size")
