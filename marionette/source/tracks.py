@@ -201,6 +201,27 @@ def _bilinear_patches(image: np.ndarray, points: np.ndarray, offsets: np.ndarray
     return _bilinear(image, points[:, None, 0] + offsets[None, :, 0], points[:, None, 1] + offsets[None, :, 1])
 
 
+
+def _window_samples(image: np.ndarray, mask: np.ndarray, points: np.ndarray, window: int):
+    """Samples of the ``window``-sided windows around (N, 2) points, for the NumPy twins.
+
+    Returns offsets (K, 2) (reversed order is ``-offsets``), weights (N, K)
+    (mask, made point-symmetric, times a Gaussian of σ = 0.3 window side,
+    zero outside the image), and the template, x and y gradients (N, K).
+    """
+    r = window // 2
+    oy, ox = np.mgrid[-r:r + 1, -r:r + 1]
+    offsets = np.stack([ox.ravel(), oy.ravel()], axis=1).astype(np.float64)
+    h, w = image.shape
+    x, y = points[:, None, 0] + offsets[None, :, 0], points[:, None, 1] + offsets[None, :, 1]
+    in_image = (x >= 0) & (x <= w - 1) & (y >= 0) & (y <= h - 1)
+    weights = _bilinear_patches(mask, points, offsets) * in_image
+    weights = weights * weights[:, ::-1] * np.exp(-(offsets**2).sum(axis=1) / (2 * (0.3 * (2 * r + 1)) ** 2))
+    template = _bilinear_patches(image, points, offsets)
+    gx = _bilinear_patches(cv2.Scharr(image, cv2.CV_32F, 1, 0) / 32.0, points, offsets)
+    gy = _bilinear_patches(cv2.Scharr(image, cv2.CV_32F, 0, 1) / 32.0, points, offsets)
+    return offsets, weights, template, gx, gy
+
 def _refine_masked_numpy(prev: np.ndarray, cur: np.ndarray, prev_mask: np.ndarray, p0: np.ndarray,
                          p1: np.ndarray, window: int, iterations: int = 8) -> np.ndarray:
     """Refine LK positions with object-only, point-symmetric window weights (NumPy reference).
@@ -221,17 +242,7 @@ def _refine_masked_numpy(prev: np.ndarray, cur: np.ndarray, prev_mask: np.ndarra
     Returns refined (N, 2) float32 positions in ``cur``. :func:`_refine_masked`
     is the same computation as a numba kernel.
     """
-    r = window // 2
-    oy, ox = np.mgrid[-r:r + 1, -r:r + 1]
-    offsets = np.stack([ox.ravel(), oy.ravel()], axis=1).astype(np.float64)  # (K, 2); reversed order is -offsets
-    h, w = prev.shape
-    x, y = p0[:, None, 0] + offsets[None, :, 0], p0[:, None, 1] + offsets[None, :, 1]
-    in_image = (x >= 0) & (x <= w - 1) & (y >= 0) & (y <= h - 1)
-    weights = _bilinear_patches(prev_mask, p0, offsets) * in_image
-    weights = weights * weights[:, ::-1] * np.exp(-(offsets**2).sum(axis=1) / (2 * (0.3 * (2 * r + 1)) ** 2))
-    template = _bilinear_patches(prev, p0, offsets)
-    gx = _bilinear_patches(cv2.Scharr(prev, cv2.CV_32F, 1, 0) / 32.0, p0, offsets)
-    gy = _bilinear_patches(cv2.Scharr(prev, cv2.CV_32F, 0, 1) / 32.0, p0, offsets)
+    offsets, weights, template, gx, gy = _window_samples(prev, prev_mask, p0, window)
     wx, wy = weights * gx, weights * gy
     hess = np.stack([np.stack([(wx * gx).sum(1), (wx * gy).sum(1)], -1),
                      np.stack([(wx * gy).sum(1), (wy * gy).sum(1)], -1)], -2)  # (N, 2, 2)
@@ -287,15 +298,23 @@ def _patch(image, px, py, radius, out):
 
 
 @numba.njit(cache=True)
+def _window_gaussian(radius):
+    """Gaussian weights (σ = 0.3 window side) over a window's pixels in row-major order."""
+    side = 2 * radius + 1
+    gauss = np.empty(side * side)
+    for k in range(side * side):
+        ox, oy = k % side - radius, k // side - radius
+        gauss[k] = np.exp(-(ox * ox + oy * oy) / (2.0 * (0.3 * side) ** 2))
+    return gauss
+
+
+@numba.njit(cache=True)
 def _refine_masked_kernel(prev, cur, gx_img, gy_img, prev_mask, p0, p1, radius, iterations, out):
     """Numba twin of :func:`_refine_masked_numpy`, one point at a time; writes (N, 2) ``out``."""
     h, w = prev.shape
     side = 2 * radius + 1
     count = side * side
-    gauss = np.empty(count)
-    for k in range(count):
-        ox, oy = k % side - radius, k // side - radius
-        gauss[k] = np.exp(-(ox * ox + oy * oy) / (2.0 * (0.3 * side) ** 2))
+    gauss = _window_gaussian(radius)
     for n in range(p0.shape[0]):
         m, tmpl, gx, gy, now = np.empty(count), np.empty(count), np.empty(count), np.empty(count), np.empty(count)
         px, py = p0[n, 0], p0[n, 1]
@@ -365,17 +384,7 @@ def _align_affine_numpy(ref: np.ndarray, ref_mask: np.ndarray, cur: np.ndarray, 
     Returns positions (N, 2), warps (N, 2, 2) and the weighted RMS residual
     (N,) of the normalised images (inf where the window has too little texture).
     """
-    r = window // 2
-    oy, ox = np.mgrid[-r:r + 1, -r:r + 1]
-    offsets = np.stack([ox.ravel(), oy.ravel()], axis=1).astype(np.float64)  # (K, 2)
-    h, w = ref.shape
-    x, y = p_ref[:, None, 0] + offsets[None, :, 0], p_ref[:, None, 1] + offsets[None, :, 1]
-    in_image = (x >= 0) & (x <= w - 1) & (y >= 0) & (y <= h - 1)
-    weights = _bilinear_patches(ref_mask, p_ref, offsets) * in_image
-    weights = weights * weights[:, ::-1] * np.exp(-(offsets**2).sum(axis=1) / (2 * (0.3 * (2 * r + 1)) ** 2))
-    template = _bilinear_patches(ref, p_ref, offsets)
-    gx = _bilinear_patches(cv2.Scharr(ref, cv2.CV_32F, 1, 0) / 32.0, p_ref, offsets)
-    gy = _bilinear_patches(cv2.Scharr(ref, cv2.CV_32F, 0, 1) / 32.0, p_ref, offsets)
+    offsets, weights, template, gx, gy = _window_samples(ref, ref_mask, p_ref, window)
     # Steepest-descent images for the parameters (D00, D01, D10, D11, d0, d1) of x ↦ (I + D) x + d.
     sd = np.stack([gx * offsets[:, 0], gx * offsets[:, 1], gy * offsets[:, 0], gy * offsets[:, 1], gx, gy], -1)
     hess = np.einsum("nk,nki,nkj->nij", weights, sd, sd)  # (N, 6, 6)
@@ -441,10 +450,7 @@ def _align_affine_kernel(ref, gx_img, gy_img, ref_mask, cur, p_ref, p_init, a_in
     h, w = ref.shape
     side = 2 * radius + 1
     count = side * side
-    gauss = np.empty(count)
-    for k in range(count):
-        ox, oy = k % side - radius, k // side - radius
-        gauss[k] = np.exp(-(ox * ox + oy * oy) / (2.0 * (0.3 * side) ** 2))
+    gauss = _window_gaussian(radius)
     for n in range(p_ref.shape[0]):
         m, tmpl, gx, gy = np.empty(count), np.empty(count), np.empty(count), np.empty(count)
         px, py = p_ref[n, 0], p_ref[n, 1]
