@@ -295,3 +295,30 @@ def test_mask_errors(tmp_path):
     write_masks(tmp_path / "empty", np.zeros((3, 8, 8), bool))
     with pytest.raises(InputError, match="all masks .* are empty"):
         read_masks(tmp_path / "empty", count=3, size=(8, 8))
+
+
+@pytest.mark.parametrize("name", ["frames", "v.gif", "v.mp4"])
+def test_frame_range_and_stride(tmp_path, name):
+    frames = smooth_frames(12, 24, 32)
+    write_video(tmp_path / name, frames, 10.0)
+    video = read_video(tmp_path / name, start=2, end=11, stride=3)
+    assert video.indices == [2, 5, 8]
+    native = 30.0 if name == "frames" else 10.0  # a folder has no rate of its own
+    assert video.fps == pytest.approx(native / 3)
+    tolerance = 0 if name == "frames" else 12  # lossy formats
+    assert np.abs(video.frames.astype(int) - frames[[2, 5, 8]]).mean() <= tolerance
+    with pytest.raises(InputError, match="selected range"):
+        read_video(tmp_path / name, start=11)
+    with pytest.raises(InputError, match="stride"):
+        read_video(tmp_path / name, stride=0)
+    with pytest.raises(InputError, match="end"):
+        read_video(tmp_path / name, start=4, end=4)
+
+
+def test_masks_follow_a_frame_range(tmp_path):
+    masks = box_masks(10, 24, 32)
+    write_masks(tmp_path / "m", masks)
+    picked = read_masks(tmp_path / "m", count=3, size=(32, 24), indices=[1, 4, 7])
+    assert np.array_equal(picked, masks[[1, 4, 7]])
+    write_masks(tmp_path / "few", masks[[1, 4, 7]])  # exactly the selected frames
+    assert np.array_equal(read_masks(tmp_path / "few", count=3, size=(32, 24), indices=[1, 4, 7]), picked)

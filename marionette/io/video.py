@@ -63,12 +63,20 @@ class Video:
         original size is about ``(W, H) / scale``.
     names : list[str]
         T frame names: file names for a folder, indices ``"0", "1", …`` for a file.
+    indices : list[int]
+        T frame numbers in the source (they differ from ``0 … T-1`` when a
+        frame range or stride was selected).
     """
 
     frames: np.ndarray
     fps: float
     scale: float
     names: list[str]
+    indices: list[int] | None = None
+
+    def __post_init__(self) -> None:
+        if self.indices is None:
+            object.__setattr__(self, "indices", list(range(self.frames.shape[0])))
 
     def __len__(self) -> int:
         return self.frames.shape[0]
@@ -82,18 +90,22 @@ class Video:
 # ---------------------------------------------------------------- reading
 
 
-def read_video(source: str | Path, *, max_side: int | None = None, fps: float | None = None) -> Video:
+def read_video(source: str | Path, *, max_side: int | None = None, fps: float | None = None,
+               start: int = 0, end: int | None = None, stride: int = 1) -> Video:
     """Read a video file (mp4, mov, avi, mkv, webm, gif …) or a folder of frames.
 
     A folder holds one image per frame (png, jpg, jpeg, bmp, tif), taken in
-    natural name order (``2.png`` before ``10.png``). Frames whose long side
-    exceeds ``max_side`` are downscaled (``cv2.INTER_AREA``) to a long side of
+    natural name order (``2.png`` before ``10.png``). Frames ``start, start +
+    stride, …`` before ``end`` (exclusive; None: to the end) are kept; the
+    frame rate is divided by ``stride``. Frames whose long side exceeds
+    ``max_side`` are downscaled (``cv2.INTER_AREA``) to a long side of
     ``max_side``. ``fps`` overrides the frame rate: the file's own rate, or
     30 for a folder. Raises :class:`InputError` for anything unreadable.
     """
     source = Path(source)
     if max_side is not None and (not isinstance(max_side, (int, np.integer)) or max_side < 1):
         raise InputError(f"max_side must be a positive integer, got {max_side!r}")
+    selection = _frame_selection(start, end, stride)
     if fps is not None:
         fps = _check_fps(fps)
     if not source.exists():
@@ -103,41 +115,59 @@ def read_video(source: str | Path, *, max_side: int | None = None, fps: float | 
         files = _image_files(source)
         if not files:
             raise InputError(f"{source} holds no images ({', '.join(IMAGE_SUFFIXES)})")
-        names = [f.name for f in files]
-        stream = ((f.name, read_image(f)[..., :3]) for f in files)  # alpha, if any, is dropped
+        indices = list(range(len(files)))[selection]
+        stream = ((files[i].name, read_image(files[i])[..., :3]) for i in indices)  # alpha, if any, is dropped
         native_fps = DEFAULT_FOLDER_FPS
-    elif source.suffix.lower() == ".gif":
-        stream, native_fps = _gif_frames(source)
-        names = None
     elif source.suffix.lower() in VIDEO_SUFFIXES:
-        stream, native_fps = _ffmpeg_frames(source)
-        names = None
+        frames_of = _gif_frames if source.suffix.lower() == ".gif" else _ffmpeg_frames
+        all_frames, native_fps = frames_of(source)
+        stream = itertools.islice(all_frames, selection.start, selection.stop, selection.step)
     else:
         raise InputError(f"{source}: unsupported video format '{source.suffix}' "
                          f"(use {', '.join(VIDEO_SUFFIXES)} or a folder of frames)")
 
-    frames, scale = _collect(source, stream, max_side)
+    frames, names, scale = _collect(source, stream, max_side)
     if len(frames) < 2:
-        raise InputError(f"{source} has {len(frames)} frame(s); a video needs at least 2")
-    return Video(
-        frames=np.stack(frames), fps=float(fps or native_fps), scale=scale,
-        names=names if names is not None else [str(i) for i in range(len(frames))],
-    )
+        chosen = "" if (start, end, stride) == (0, None, 1) else " in the selected range"
+        raise InputError(f"{source} has {len(frames)} frame(s){chosen}; a video needs at least 2")
+    if source.is_dir():
+        names_out = names
+    else:
+        indices = list(range(selection.start, selection.start + selection.step * len(frames), selection.step))
+        names_out = [str(i) for i in indices]
+    return Video(frames=np.stack(frames), fps=float(fps or native_fps / selection.step), scale=scale,
+                 names=names_out, indices=indices[:len(frames)])
 
 
-def read_masks(folder: str | Path, *, count: int, size: tuple[int, int]) -> np.ndarray:
+def _frame_selection(start: int, end: int | None, stride: int) -> slice:
+    """Check a frame range; the slice of frame numbers it selects."""
+    for name, value, low in (("start", start, 0), ("stride", stride, 1)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+            raise InputError(f"{name} must be an integer >= {low}, got {value!r}")
+    if end is not None and (isinstance(end, bool) or not isinstance(end, (int, np.integer)) or end <= start):
+        raise InputError(f"end must be an integer > start ({start}), got {end!r}")
+    return slice(int(start), None if end is None else int(end), int(stride))
+
+
+def read_masks(folder: str | Path, *, count: int, size: tuple[int, int],
+               indices: list[int] | None = None) -> np.ndarray:
     """Read ``count`` per-frame object masks of ``size`` (W, H) → (T, H, W) bool.
 
     One image per frame in natural name order; a pixel is object where any
     colour channel is non-zero (JPEG: above 127, to ignore compression noise;
     RGBA: the alpha channel when it is not uniform). Masks at the original
-    resolution of a downscaled video are resized (nearest neighbour).
+    resolution of a downscaled video are resized (nearest neighbour). When
+    the video was read with a frame range (``indices``: its frame numbers,
+    :attr:`Video.indices`), a folder with a mask for every source frame is
+    sampled the same way; one with exactly ``count`` masks is taken as it is.
     """
     folder = Path(folder)
     if not folder.is_dir():
         raise InputError(f"mask folder {folder} does not exist" if not folder.exists()
                          else f"masks must be a folder of images, got the file {folder}")
     files = _image_files(folder)
+    if indices is not None and len(files) != count and len(files) > max(indices):
+        files = [files[i] for i in indices]
     if len(files) != count:
         raise InputError(f"{folder} holds {len(files)} masks but the video has {count} frames")
     width, height = size
@@ -222,9 +252,10 @@ def _scaled_size(width: int, height: int, max_side: int) -> tuple[int, int]:
 
 
 def _collect(source: Path, stream: Iterator[tuple[str, np.ndarray]],
-             max_side: int | None) -> tuple[list[np.ndarray], float]:
-    """Downscale and size-check frames as they arrive → (frames, scale)."""
+             max_side: int | None) -> tuple[list[np.ndarray], list[str], float]:
+    """Downscale and size-check frames as they arrive → (frames, names, scale)."""
     frames: list[np.ndarray] = []
+    names: list[str] = []
     scale, first, target = 1.0, None, None
     for name, frame in stream:
         h, w = frame.shape[:2]
@@ -237,7 +268,8 @@ def _collect(source: Path, stream: Iterator[tuple[str, np.ndarray]],
         if (w, h) != target:
             frame = cv2.resize(frame, target, interpolation=cv2.INTER_AREA)
         frames.append(frame)
-    return frames, scale
+        names.append(name)
+    return frames, names, scale
 
 
 def _gif_frames(path: Path) -> tuple[Iterator[tuple[str, np.ndarray]], float]:
