@@ -1,14 +1,16 @@
 """Synthetic rigid-motion videos with exact ground truth.
 
 Procedurally textured objects made of planar faces (a box, or a body with a
-hinged lid) move in front of a static 60° pinhole camera and are rendered by
-an exact ray–plane renderer with supersampled anti-aliasing. Each scene
-carries per-frame masks, per-part masks and the ground-truth poses in the
-SpaT prior convention (DESIGN.md): the demo's source video, the tests' input
-and the motion-extraction benchmarks' reference.
+hinged lid) move in front of a 60° pinhole camera, static or moving, and are
+rendered by an exact ray–plane renderer with supersampled anti-aliasing. Each
+scene carries per-frame masks, per-part masks, depth maps, the camera's poses
+and the ground-truth object poses in the SpaT prior convention (DESIGN.md):
+the demo's source video, the tests' input and the motion-extraction
+benchmarks' reference.
 """
 
 from ._scene import (
+    CAMERA_MOTIONS,
     MOTIONS,
     OBJECTS,
     TARGET_OBJECTS,
@@ -17,4 +19,5 @@ from ._scene import (
     render_object_image,
 )
 
-__all__ = ["MOTIONS", "OBJECTS", "TARGET_OBJECTS", "SyntheticScene", "make_scene", "render_object_image"]
+__all__ = ["CAMERA_MOTIONS", "MOTIONS", "OBJECTS", "TARGET_OBJECTS", "SyntheticScene", "make_scene",
+           "render_object_image"]

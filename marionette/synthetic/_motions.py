@@ -93,3 +93,36 @@ def plan_motion(motion: str, shape: Shape, camera: Camera, num_frames: int,
     else:
         raise ValueError(f"unknown motion {motion!r}")
     return make_transform(rot0, centre), np.repeat(poses[None], num_parts, axis=0)
+
+
+def plan_camera(kind: str, num_frames: int, distance: float, rng: np.random.Generator) -> np.ndarray:
+    """World-to-camera transforms (T, 4, 4) of a moving camera; frame 0 is identity.
+
+    ``"static"``: identity throughout. ``"pan"``: a smooth (ease-in, ease-out)
+    turn of 10-16° yaw and 2-6° pitch over the clip, about the camera centre.
+    ``"handheld"``: a slow sway of 1-3° about each axis (less roll) and a
+    drift of ~1 % of ``distance`` (the object's depth), plus per-frame jitter
+    of ~0.08° and ~0.1 %.
+    """
+    s = np.linspace(0.0, 1.0, num_frames)
+    if kind == "static":
+        return np.tile(np.eye(4), (num_frames, 1, 1))
+    if kind == "pan":
+        amplitude = np.radians([rng.uniform(2, 6), rng.uniform(10, 16), 0.0]) * rng.choice([-1.0, 1.0], 3)
+        rotvec = (s * s * (3 - 2 * s))[:, None] * amplitude
+        centre = np.zeros((num_frames, 3))
+    elif kind == "handheld":
+        def sway(scale: np.ndarray, jitter: float) -> np.ndarray:
+            # Two slow sinusoids per axis plus white jitter, shifted so frame 0 sits at zero.
+            freq = rng.uniform(0.4, 1.6, (2, 3))
+            phase = rng.uniform(0, 2 * np.pi, (2, 3))
+            wave = np.sin(2 * np.pi * freq[:, None] * s[None, :, None] + phase[:, None]).sum(axis=0) / 2
+            path = wave * scale + rng.normal(0.0, jitter, (num_frames, 3))
+            return path - path[0]
+
+        rotvec = sway(np.radians([rng.uniform(1, 3), rng.uniform(1, 3), rng.uniform(0.5, 1.5)]), np.radians(0.08))
+        centre = sway(np.full(3, 0.01 * distance), 0.001 * distance)
+    else:
+        raise ValueError(f"unknown camera motion {kind!r}")
+    to_world = axis_angle_to_matrix(rotvec)  # camera orientation in the world
+    return make_transform(np.swapaxes(to_world, 1, 2), -np.einsum("tji,tj->ti", to_world, centre))

@@ -140,8 +140,8 @@ def _face_box(face: Face, camera: Camera) -> tuple[int, int, int, int] | None:
     return (u0, u1, v0, v1) if u0 <= u1 and v0 <= v1 else None
 
 
-def render_shape(shape: Shape, poses: np.ndarray, camera: Camera, *,
-                 reference: bool = False) -> tuple[np.ndarray, np.ndarray]:
+def render_shape(shape: Shape, poses: np.ndarray, camera: Camera, *, reference: bool = False,
+                 with_depth: bool = False) -> tuple[np.ndarray, ...]:
     """Render parts moved by ``poses`` (P, 4, 4) (world transforms) at ``SUPERSAMPLE`` times ``camera``'s size.
 
     ``reference=True`` uses the plain-NumPy twin instead of the numba kernel.
@@ -152,6 +152,8 @@ def render_shape(shape: Shape, poses: np.ndarray, camera: Camera, *,
         Shaded colour, 0 where no part is hit.
     ids : (H*S, W*S) int8
         Part index per sample, -1 for background.
+    depth : (H*S, W*S) float64
+        Only with ``with_depth``: z-depth of each sample in ``camera``'s frame, inf for background.
     """
     big = camera.resized(camera.width * SUPERSAMPLE, camera.height * SUPERSAMPLE)
     color = np.zeros((big.height, big.width, 3), np.float32)
@@ -170,7 +172,34 @@ def render_shape(shape: Shape, poses: np.ndarray, camera: Camera, *,
                 _draw_face_kernel(face.origin, face.edge_s, face.edge_t, face.normal, face.normals, face.window,
                                   face.disk, face.texture, k, big.fx, big.fy, big.cx, big.cy, *box, LIGHT,
                                   AMBIENT, _EDGE_SLACK, color, depth, ids)
-    return color, ids
+    return (color, ids, depth) if with_depth else (color, ids)
+
+
+def pixel_depth(depth: np.ndarray) -> np.ndarray:
+    """Supersampled z-depth (H*S, W*S) → per-pixel depth (H, W) float32.
+
+    Takes the sample at each pixel's centre (``SUPERSAMPLE`` is odd), so the
+    value is the exact depth along the ray through the pixel centre, the ray
+    that ``d K^-1 [u, v, 1]`` lifts. It is inf where that ray misses the
+    object, which on silhouette edges can disagree with the coverage mask.
+    """
+    c = SUPERSAMPLE // 2
+    return depth[c::SUPERSAMPLE, c::SUPERSAMPLE].astype(np.float32)
+
+
+def view_background(image: np.ndarray, K: np.ndarray, world_to_camera: np.ndarray, distance: float) -> np.ndarray:
+    """A background seen from a moved camera: ``image`` (H, W, 3) float32 is a plane at depth ``distance``.
+
+    The plane ``z = distance`` in the world (camera frame 0) looks like
+    ``image`` from frame 0; from camera ``world_to_camera`` (4, 4) it maps by
+    the plane-induced homography ``K (R + t n^T / distance) K^-1``, ``n = e_z``.
+    Beyond its edges the plane repeats ``image`` mirrored. Returns (H, W, 3) float32.
+    """
+    r, t = world_to_camera[:3, :3], world_to_camera[:3, 3]
+    homography = K @ (r + np.outer(t, [0.0, 0.0, 1.0 / distance])) @ np.linalg.inv(K)
+    h, w = image.shape[:2]
+    return cv2.warpPerspective(np.ascontiguousarray(image, np.float32), homography, (w, h),
+                               flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101)
 
 
 def resolve(color: np.ndarray, ids: np.ndarray, num_parts: int,

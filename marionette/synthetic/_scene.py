@@ -10,9 +10,9 @@ from ..camera import MAX_IMAGE_SIDE, Camera
 from ..errors import InputError
 from ..geometry import axis_angle_to_matrix, make_transform
 from ..prior import SpatPrior
-from ._motions import plan_motion
+from ._motions import plan_camera, plan_motion
 from ._objects import make_box, make_cylinder, make_hinged_box
-from ._render import render_shape, resolve
+from ._render import pixel_depth, render_shape, resolve, view_background
 from ._textures import background_texture
 
 MOTIONS = ("translation", "inplane", "outofplane", "oscillation", "hinge")
@@ -20,10 +20,14 @@ OBJECTS = ("box", "hinge")
 #: Objects ``render_object_image`` can draw.
 TARGET_OBJECTS = ("box", "hinge", "cylinder")
 BACKGROUNDS = ("textured", "plain")
+CAMERA_MOTIONS = ("static", "pan", "handheld")
 
 #: Horizontal field of view of the synthetic camera, in degrees.
 FOV_DEG = 60.0
 _PLAIN_BACKGROUND = np.array([0.86, 0.86, 0.84], np.float32)
+#: Depth of the background plane, in units of the object's depth at frame 0:
+#: far enough that a moving camera sees it turn almost like a rotation homography.
+_BACKGROUND_DEPTH = 10.0
 _BUILDERS = {"box": make_box, "hinge": make_hinged_box, "cylinder": make_cylinder}
 
 
@@ -40,7 +44,7 @@ class SyntheticScene:
     part_masks : (T, H, W) int8
         Part index per object pixel, -1 for background; part 0 is the largest.
     camera : Camera
-        Static intrinsics; the world is the camera frame of frame 0
+        Intrinsics and the camera of frame 0, which is the world frame
         (``world_to_camera`` is identity).
     poses : (P, T, 4, 4) float64
         ``poses[k, t]`` maps part k's points at frame 0 to frame t, in the
@@ -53,6 +57,14 @@ class SyntheticScene:
         One of ``MOTIONS``.
     object : str
         One of ``OBJECTS``.
+    depths : (T, H, W) float32
+        z-depth of the object along each pixel centre's ray, in the camera of
+        that frame; inf where the ray misses the object (the background).
+    camera_poses : (T, 4, 4) float64
+        ``world_to_camera`` of each frame; identity for frame 0, and for all
+        frames of a static camera.
+    camera_motion : str
+        One of ``CAMERA_MOTIONS``.
     """
 
     frames: np.ndarray
@@ -64,6 +76,9 @@ class SyntheticScene:
     fps: float
     motion: str
     object: str
+    depths: np.ndarray
+    camera_poses: np.ndarray
+    camera_motion: str
 
     @property
     def num_frames(self) -> int:
@@ -118,7 +133,7 @@ def _check_number(name: str, value: object, *, positive: bool) -> float:
 # Random streams, one per purpose and per use, so that changing how one is
 # drawn from never perturbs the others: np.random.default_rng([seed, purpose, use]).
 _SCENE, _TARGET = 0, 1
-_GEOMETRY, _TEXTURE, _BACKGROUND, _NOISE = 0, 1, 2, 3
+_GEOMETRY, _TEXTURE, _BACKGROUND, _NOISE, _CAMERA = 0, 1, 2, 3, 4
 
 
 def _rng(seed: int, purpose: int, use: int) -> np.random.Generator:
@@ -127,8 +142,9 @@ def _rng(seed: int, purpose: int, use: int) -> np.random.Generator:
 
 def make_scene(motion: str, *, object: str | None = None, num_frames: int = 48,
                size: tuple[int, int] = (320, 240), seed: int = 0, fps: float = 24.0,
-               background: str = "textured", noise: float = 0.0) -> SyntheticScene:
-    """Render a textured rigid object moving in front of a static camera.
+               background: str = "textured", noise: float = 0.0,
+               camera_motion: str = "static") -> SyntheticScene:
+    """Render a textured rigid object moving in front of a static or moving camera.
 
     Parameters
     ----------
@@ -160,6 +176,15 @@ def make_scene(motion: str, *, object: str | None = None, num_frames: int = 48,
         Standard deviation, in 8-bit intensity levels, of Gaussian pixel noise
         added to every frame (independently per pixel and channel). It does
         not touch the masks or the ground truth.
+    camera_motion : str
+        ``"static"``, ``"pan"`` (a smooth 10-16° yaw with 2-6° pitch over the
+        clip) or ``"handheld"`` (1-3° sway, ~1 % drift of the object's depth,
+        per-frame jitter); see ``scene.camera_poses``. Object poses stay in
+        the world frame (the camera of frame 0), so the ground truth does not
+        change. The background is a plane 10 times further than the object,
+        facing the frame-0 camera: it turns with the camera (a homography,
+        with slight parallax under the handheld drift). A static camera gives
+        the same frames as before this option existed.
 
     Returns
     -------
@@ -180,6 +205,8 @@ def make_scene(motion: str, *, object: str | None = None, num_frames: int = 48,
     if background not in BACKGROUNDS:
         raise InputError(f"background must be one of {', '.join(BACKGROUNDS)}, got {background!r}")
     noise = _check_number("noise", noise, positive=False)
+    if camera_motion not in CAMERA_MOTIONS:
+        raise InputError(f"camera_motion must be one of {', '.join(CAMERA_MOTIONS)}, got {camera_motion!r}")
 
     geom = _rng(seed, _SCENE, _GEOMETRY)
     local = _BUILDERS[obj](geom, _rng(seed, _SCENE, _TEXTURE))
@@ -192,18 +219,26 @@ def make_scene(motion: str, *, object: str | None = None, num_frames: int = 48,
         bg = np.broadcast_to(_PLAIN_BACKGROUND, (height, width, 3))
 
     t_count, p_count = poses.shape[1], poses.shape[0]
+    distance = _BACKGROUND_DEPTH * placement[2, 3]
+    camera_poses = plan_camera(camera_motion, t_count, placement[2, 3], _rng(seed, _SCENE, _CAMERA))
     frames = np.empty((t_count, height, width, 3), np.uint8)
     masks = np.empty((t_count, height, width), bool)
     part_masks = np.empty((t_count, height, width), np.int8)
+    depths = np.empty((t_count, height, width), np.float32)
     noise_rng = _rng(seed, _SCENE, _NOISE)
     for t in range(t_count):
-        image, coverage, part_masks[t] = resolve(*render_shape(shape, poses[:, t], camera), p_count, bg)
+        view = Camera(camera.K, camera_poses[t], width, height)
+        color, ids, depth = render_shape(shape, poses[:, t], view, with_depth=True)
+        depths[t] = pixel_depth(depth)
+        back = bg if camera_motion == "static" else view_background(bg, camera.K, camera_poses[t], distance)
+        image, coverage, part_masks[t] = resolve(color, ids, p_count, back)
         image *= 255.0
         if noise > 0:
             image += noise_rng.normal(0.0, noise, image.shape).astype(np.float32)
         frames[t] = np.clip(np.rint(image), 0, 255)
         masks[t] = coverage > 0.5
-    return SyntheticScene(frames, masks, part_masks, camera, poses, shape.part_points(), fps, motion, obj)
+    return SyntheticScene(frames, masks, part_masks, camera, poses, shape.part_points(), fps, motion, obj,
+                          depths, camera_poses, camera_motion)
 
 
 def render_object_image(object: str = "box", *, size: tuple[int, int] = (256, 256), seed: int = 0,

@@ -1,0 +1,209 @@
+"""Camera motion from background tracks, and its removal from object poses.
+
+The world frame is the camera frame of source frame 0 (DESIGN.md). When the
+camera moves, a pose fitted in the camera of frame t mixes the object's
+motion with the camera's; this module estimates the camera's motion from
+the background and takes it out again (:func:`to_world`).
+
+Model: the background is far from the camera compared with how far the
+camera travels (hand-held footage, pans), so its image moves by the rotation
+homography ``H_t = K R_t K^-1`` and each background point keeps one viewing
+direction ``w`` in the world: its bearing at frame t is ``b_t = R_t w``.
+Per frame we fit ``R_t`` to those bearing pairs (Wahba's problem, solved by
+an SVD: Kabsch without centring) inside RANSAC on two-point samples. Each
+track gets its world direction where it is first seen: tracks seeded at
+frame 0 anchor ``R_t`` to frame 0 directly, re-seeded ones bridge frames
+that no frame-0 track reaches (their error is that of one earlier frame,
+not a sum over all steps).
+
+The camera's translation is not estimated: the parallax it causes on a far
+background is a fraction of a pixel, below what tracks resolve robustly,
+and near backgrounds (a table top) are mostly planar, where translation and
+rotation are confused. ``world_to_camera`` therefore has zero translation;
+an object pose in the world is off by the camera's travel, which
+``residual_px`` (the parallax the rotation model leaves) bounds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ..errors import InputError
+from ..geometry import invert_transform, make_transform
+from .tracks import Tracks, _check_video, track
+
+__all__ = ["CameraMotion", "estimate_camera_motion", "to_world"]
+
+
+@dataclass(frozen=True)
+class CameraMotion:
+    """The source camera's motion.
+
+    Attributes
+    ----------
+    world_to_camera : (T, 4, 4) float64
+        Camera of frame t from the world (the camera of frame 0): identity at
+        frame 0, and everywhere for a static camera. Rotation only (see the
+        module notes).
+    static : bool
+        The background does not move (median displacement below the threshold).
+    inlier_ratio : (T,) float64
+        Share of the frame's usable background tracks that agree with its
+        rotation; 1 at frame 0 and for a static camera, 0 where too few
+        background tracks were left (the previous rotation is kept).
+    residual_px : (T,) float64
+        RMS distance in pixels between the inliers' tracked positions and
+        where the rotation puts them (includes parallax from translation).
+    displacement_px : float
+        Largest per-frame median displacement of the background tracks since
+        they were seeded, in pixels: the static test's statistic.
+    num_tracks : int
+        Background tracks used.
+    """
+
+    world_to_camera: np.ndarray
+    static: bool
+    inlier_ratio: np.ndarray
+    residual_px: np.ndarray
+    displacement_px: float
+    num_tracks: int
+
+
+def _kabsch(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """Rotations (..., 3, 3) minimising ``Σ |dst - R src|²`` over direction pairs (..., N, 3) (no centring)."""
+    u, _, vt = np.linalg.svd(np.swapaxes(src, -1, -2) @ dst)
+    d = np.sign(np.linalg.det(np.swapaxes(vt, -1, -2) @ np.swapaxes(u, -1, -2)))
+    vt[..., 2, :] *= d[..., None]  # keep det(R) = +1
+    return np.swapaxes(vt, -1, -2) @ np.swapaxes(u, -1, -2)
+
+
+def _ransac_rotation(src: np.ndarray, dst: np.ndarray, threshold: float, iterations: int,
+                     rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Robust ``dst ≈ R src`` on unit directions (N, 3), inliers within ``threshold`` (radians) → (R, inliers)."""
+    pairs = np.stack([rng.choice(len(src), 2, replace=False) for _ in range(iterations)])  # (I, 2)
+    hypotheses = _kabsch(src[pairs], dst[pairs])  # (I, 3, 3)
+    errors = np.linalg.norm(dst[None] - src @ np.swapaxes(hypotheses, 1, 2), axis=2)  # (I, N)
+    inliers = errors[np.argmax((errors < threshold).sum(axis=1))] < threshold
+    for _ in range(3):  # refit on the consensus, then re-select it
+        r = _kabsch(src[inliers], dst[inliers])
+        inliers = np.linalg.norm(dst - src @ r.T, axis=1) < threshold
+        if inliers.sum() < 2:
+            break
+    return r, inliers
+
+
+def _bearings(uv: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """Pixels (..., 2) → unit viewing directions (..., 3) in the camera."""
+    rays = np.concatenate([uv, np.ones(uv.shape[:-1] + (1,))], axis=-1) @ np.linalg.inv(k).T
+    return rays / np.linalg.norm(rays, axis=-1, keepdims=True)
+
+
+def _displacement(tracks: Tracks) -> float:
+    """Largest over frames of the median distance (px) the visible tracks moved since their seed frame."""
+    seed_uv = tracks.uv[tracks.start, np.arange(tracks.num_tracks)]  # (M, 2)
+    moved = np.linalg.norm(tracks.uv - seed_uv[None], axis=2)  # (T, M), NaN where not visible
+    counts = np.isfinite(moved).sum(axis=1)
+    if not counts[1:].any():
+        return 0.0
+    return float(np.max([np.nanmedian(row) for row, n in zip(moved[1:], counts[1:]) if n]))
+
+
+def estimate_camera_motion(frames: np.ndarray, object_masks: np.ndarray, K: np.ndarray, *, margin: int = 8,
+                           spacing: int = 8, min_eigen: float = 5e-5, threshold_px: float = 1.0,
+                           static_px: float = 0.5, min_tracks: int = 8, iterations: int = 200,
+                           seed: int = 0) -> CameraMotion:
+    """Estimate the camera's rotation per frame from tracks on the background.
+
+    Parameters
+    ----------
+    frames : (T, H, W, 3) uint8
+        RGB frames.
+    object_masks : (T, H, W) bool or integer
+        Moving-object masks (non-zero = object); everything at least
+        ``margin`` pixels away from them is background.
+    K : (3, 3) float64
+        Camera intrinsics.
+    margin : int
+        Dilation (px) of the object masks before inverting them: boundary
+        pixels belong to neither.
+    spacing, min_eigen :
+        Background track grid spacing (px) and texture floor, passed to
+        :func:`~marionette.source.tracks.track`; the floor is lower than on
+        objects because backgrounds are often low in contrast.
+    threshold_px : float
+        RANSAC inlier threshold, in pixels at the focal length.
+    static_px : float
+        The camera is static when the median background displacement stays
+        below this many pixels in every frame.
+    min_tracks : int
+        Fewest inlier tracks to trust a frame's rotation.
+    iterations : int
+        RANSAC hypotheses per frame.
+    seed : int
+        RANSAC random seed (results are deterministic).
+
+    Returns
+    -------
+    CameraMotion
+    """
+    frames, object_masks = _check_video(frames, object_masks)
+    k = np.asarray(K, dtype=np.float64)
+    if k.shape != (3, 3) or not np.all(np.isfinite(k)) or k[0, 0] <= 0 or k[1, 1] <= 0:
+        raise InputError(f"K must be a 3x3 intrinsics matrix with positive focal lengths, got {k.tolist()}")
+    num_frames = len(frames)
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin + 1,) * 2)
+    background = np.stack([cv2.dilate(m.view(np.uint8), disc) == 0 for m in object_masks])
+    tracks = track(frames, background, spacing=spacing, min_eigen=min_eigen)
+    identity = np.tile(np.eye(4), (num_frames, 1, 1))
+    displacement = _displacement(tracks)
+    if displacement < static_px:
+        return CameraMotion(identity, True, np.ones(num_frames), np.zeros(num_frames), displacement,
+                            tracks.num_tracks)
+
+    bearings = _bearings(tracks.uv.astype(np.float64), k)  # (T, M, 3), NaN where not visible
+    world = np.where((tracks.start == 0)[:, None], bearings[0], np.nan)  # (M, 3) direction in the world
+    rotations = np.tile(np.eye(3), (num_frames, 1, 1))
+    inlier_ratio, residual = np.ones(num_frames), np.zeros(num_frames)
+    focal = np.sqrt(k[0, 0] * k[1, 1])
+    rng = np.random.default_rng(seed)
+    for t in range(1, num_frames):
+        usable = np.nonzero(tracks.visible[t] & np.isfinite(world[:, 0]))[0]
+        rotations[t], inlier_ratio[t] = rotations[t - 1], 0.0
+        if len(usable) >= max(min_tracks, 2):
+            r, inliers = _ransac_rotation(world[usable], bearings[t, usable], threshold_px / focal, iterations, rng)
+            if inliers.sum() >= min_tracks:
+                rotations[t], inlier_ratio[t] = r, inliers.mean()
+                err = np.linalg.norm(bearings[t, usable[inliers]] - world[usable[inliers]] @ r.T, axis=1)
+                residual[t] = focal * np.sqrt(np.mean(err ** 2))
+        fresh = tracks.visible[t] & ~np.isfinite(world[:, 0])
+        world[fresh] = bearings[t, fresh] @ rotations[t]  # R^T b, row-wise
+    return CameraMotion(make_transform(rotations, np.zeros(3)), False, inlier_ratio, residual, displacement,
+                        tracks.num_tracks)
+
+
+def to_world(poses_cam: np.ndarray, camera_motion: CameraMotion) -> np.ndarray:
+    """Remove the camera's motion from object poses.
+
+    A pose measured in the camera of frame t, ``P_cam_t`` (frame-0 points,
+    in camera 0 = world coordinates, to their camera-t coordinates), becomes
+    ``P_world_t = C_t^-1 P_cam_t`` with ``C_t`` the camera's world_to_camera.
+
+    Parameters
+    ----------
+    poses_cam : (..., T, 4, 4) float64
+        E.g. (K, T, 4, 4) per part.
+    camera_motion : CameraMotion
+        With T frames.
+
+    Returns
+    -------
+    (..., T, 4, 4) float64
+    """
+    c = camera_motion.world_to_camera
+    poses_cam = np.asarray(poses_cam, dtype=np.float64)
+    if poses_cam.shape[-3:] != c.shape:
+        raise ValueError(f"to_world: poses (..., {len(c)}, 4, 4) expected, got {poses_cam.shape}")
+    return invert_transform(c) @ poses_cam
