@@ -88,9 +88,9 @@ def main() -> None:
         acc = pixel_accuracy(seg.pixel_labels, scene.part_masks[0]) * 100
         expected = 2 if motion == "hinge" else 1
         rows.append((motion, frames, seed, tracks.num_tracks, seg.num_parts, groups(seg), expected, acc,
-                     int((seg.track_labels < STATIC).sum()), elapsed))
+                     int((seg.track_labels < STATIC).sum()), seg.noise, elapsed))
         print(f"{motion:12s} {frames} frames seed {seed}: tracks {tracks.num_tracks:4d}  moving parts {seg.num_parts}  "
-              f"groups {groups(seg)}  pixel accuracy {acc:5.1f} %  {elapsed:.2f} s", flush=True)
+              f"groups {groups(seg)}  pixel accuracy {acc:5.1f} %  noise {seg.noise:.2f} px  {elapsed:.2f} s", flush=True)
 
     davis = None
     if DAVIS_TRAIN.is_dir():
@@ -108,9 +108,9 @@ def main() -> None:
         cv2.imwrite(args.figure, cv2.cvtColor(np.concatenate(panels, axis=1), cv2.COLOR_RGB2BGR))
         sizes = np.bincount(seg.track_labels[seg.track_labels >= 0])
         davis = (len(video), video.size, tracks.num_tracks, seg.num_parts, groups(seg), sizes.tolist(),
-                 int((seg.track_labels < STATIC).sum()), elapsed, results[3][1], seg.scores)
+                 int((seg.track_labels < STATIC).sum()), elapsed, results[3][1], seg.scores, seg.noise)
         print(f"davis_train: {len(video)} frames {video.size}, tracks {tracks.num_tracks}: auto -> moving parts "
-              f"{seg.num_parts} (tracks per part {sizes.tolist()}, outliers {davis[6]}), {elapsed:.2f} s; "
+              f"{seg.num_parts} (tracks per part {sizes.tolist()}, outliers {davis[6]}), noise {seg.noise:.2f} px, {elapsed:.2f} s; "
               f"scores {({k: round(v) for k, v in seg.scores.items()})}; figure {args.figure}")
 
     lines = [
@@ -124,24 +124,33 @@ def main() -> None:
         "Pixel accuracy: share of frame-0 object pixels whose label matches the ground-truth part, under the best"
         " matching of labels to parts (the static group is a label like the others). Groups: moving parts plus the"
         " static group when it holds tracks (the hinge's body does not move in some seeds). Expected groups: 2 for the"
-        " hinge, 1 for a rigid box. Target: >= 95 % on the hinge. Time: `segment_parts` alone, wall clock on a shared"
-        " 2-core machine.",
+        " hinge, 1 for a rigid box. Target: >= 95 % on the hinge. σ: the noise `segment_parts` estimated (pixels; the"
+        " threshold is 2 σ). Time: `segment_parts` alone, wall clock on a shared 2-core machine.",
         "",
         "| motion | frames | seed | tracks | moving parts | groups (expected) | pixel accuracy (%) | outlier tracks"
-        " | time (s) |",
-        "|---|---|---|---|---|---|---|---|---|",
+        " | σ (px) | time (s) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for motion, frames, seed, m, p, g, expected, acc, outliers, elapsed in rows:
+    for motion, frames, seed, m, p, g, expected, acc, outliers, noise, elapsed in rows:
         lines.append(f"| {motion} | {frames} | {seed} | {m} | {p} | {g} ({expected}) | {acc:.1f} | {outliers}"
-                     f" | {elapsed:.2f} |")
+                     f" | {noise:.2f} | {elapsed:.2f} |")
     if davis is not None:
-        t, (w, h), m, p, g, sizes, outliers, elapsed, elapsed3, scores = davis
+        t, (w, h), m, p, g, sizes, outliers, elapsed, elapsed3, scores, noise = davis
         lines += [
             "",
             f"Real clip `davis_train` ({t} frames at {w}x{h}, {m} tracks): `auto` gives {p} moving part(s)"
-            f" (tracks per part {sizes}, {outliers} outlier tracks), {elapsed:.2f} s; scores"
+            f" (tracks per part {sizes}, {outliers} outlier tracks), estimated σ {noise:.2f} px, {elapsed:.2f} s; scores"
             f" {({k: round(v) for k, v in scores.items()})}. `num_parts=3`: {elapsed3:.2f} s."
             f" Figure (frame 0, `auto` left, `num_parts=3` right): `{args.figure}` (not in the repository).",
+            "",
+            "Open: the train is not split. Tracks under the rigid motion of their 12-track patch leave 0.39 px"
+            " (median RMS), under one motion of the whole train 0.74 px; motions fitted to the frame-0 tracks of"
+            " the locomotive, the grey car and the red car explain their own tracks to 0.50 / 0.49 / 0.95 px, one"
+            " motion of all of them to 0.51 / 0.58 / 0.73 px (all frames). On a track of constant curvature every"
+            " car turns about the same centre by the same angle, so the cars differ only where the curvature"
+            " changes, and the per-point depths absorb most of the rest over a track's life (median 34 of 80"
+            " frames): the evidence per track is within the noise, and the sequential growth, which seeds a new"
+            " part only on tracks no motion explains, finds none.",
         ]
     Path(args.out).write_text("\n".join(lines) + "\n")
     print(f"wrote {args.out}")

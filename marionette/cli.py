@@ -7,6 +7,7 @@ bad input or usage, and writes its outputs atomically.
 from __future__ import annotations
 
 import sys
+import warnings
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -18,6 +19,7 @@ from .camera import MAX_IMAGE_SIDE, Camera
 from .errors import InputError
 from .io import read_ply, read_prior, write_image, write_prior
 from .io.atomic import check_output_dir, check_output_path
+from .plot import plot_prior
 from .progress import Reporter
 from .render import render
 from .source import ExtractOptions
@@ -58,14 +60,12 @@ def _parse_size(text: str | None) -> tuple[int, int] | None:
     return w, h
 
 
-def _parse_parts(text: str) -> int:
+def _parse_parts(text: str) -> int | str:
     if text == "auto":
-        return 1
-    if not text.isdigit() or int(text) < 1:
-        raise InputError(f"--parts must be 'auto' or a positive integer, got {text!r}")
-    if int(text) > 1:
-        raise InputError("--parts above 1 is not supported by this version's extractor yet")
-    return 1
+        return "auto"
+    if not text.isdigit() or not 1 <= int(text) <= 8:
+        raise InputError(f"--parts must be 'auto' or an integer from 1 to 8, got {text!r}")
+    return int(text)
 
 
 def _video_output(path: Path) -> Path:
@@ -93,18 +93,48 @@ def demo(output: Annotated[Path, typer.Option("--output", "-o", help="Output fol
     run_demo(output, reporter=Reporter(quiet))
 
 
+Masks = Annotated[Optional[Path], typer.Option(help="Folder of per-frame mask images (default: found automatically).")]
+Depth = Annotated[Optional[Path], typer.Option(help="Folder of per-frame depth maps (16-bit PNG in mm, or .npy).")]
+Focal = Annotated[Optional[float], typer.Option(help="Focal length in pixels (default: 60° horizontal FOV).")]
+Parts = Annotated[str, typer.Option(help="Number of rigid parts, or 'auto'.")]
+Start = Annotated[int, typer.Option(help="First source frame to use.")]
+End = Annotated[Optional[int], typer.Option(help="Source frame to stop before (default: the end).")]
+Stride = Annotated[int, typer.Option(help="Use every N-th source frame.")]
+MaxSide = Annotated[int, typer.Option(help="Downscale source frames to this long side (intrinsics follow).")]
+Smooth = Annotated[float, typer.Option(help="Temporal smoothing of the poses (0: off).")]
+Plot = Annotated[Optional[Path], typer.Option(help="Also draw each part's rotation and translation to this PNG.")]
+
+
+def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, stride: int, max_side: int,
+             smooth: float, plot, reporter: Reporter):
+    """Shared by ``extract`` and ``run``: check the options, extract, draw the plot."""
+    parts_value = _parse_parts(parts)
+    if not 16 <= max_side <= MAX_IMAGE_SIDE:
+        raise InputError(f"--max-side must be within 16..{MAX_IMAGE_SIDE}, got {max_side}")
+    if not (np.isfinite(smooth) and 0 <= smooth <= 100):
+        raise InputError(f"--smooth must be within 0..100, got {smooth}")
+    if plot is not None:
+        if plot.suffix.lower() != ".png":
+            raise InputError(f"--plot must name a .png file, got {plot.name!r}")
+        check_output_path(plot)
+    options = ExtractOptions(parts=parts_value, smoothing=smooth)
+    prior = pipeline.extract(source, masks=masks, depth=depth, focal=focal, max_side=max_side, start=start,
+                             end=end, stride=stride, options=options, reporter=reporter)
+    return prior
+
+
 @app.command()
 def extract(source: Annotated[Path, typer.Argument(help="Video file or folder of frames.")],
-            output: Output,
-            masks: Annotated[Optional[Path], typer.Option(help="Folder of per-frame mask PNGs.")] = None,
-            focal: Annotated[Optional[float], typer.Option(help="Focal length in pixels (default: 60° FOV).")] = None,
-            parts: Annotated[str, typer.Option(help="Number of rigid parts, or 'auto'.")] = "auto",
-            quiet: Quiet = False) -> None:
+            output: Output, masks: Masks = None, depth: Depth = None, focal: Focal = None, parts: Parts = "auto",
+            start: Start = 0, end: End = None, stride: Stride = 1, max_side: MaxSide = pipeline.DEFAULT_MAX_SIDE,
+            smooth: Smooth = 1.0, plot: Plot = None, quiet: Quiet = False) -> None:
     """Extract the SpaT prior (per-part rigid motion) from a source video."""
-    _parse_parts(parts)
     check_output_path(output)
-    prior = pipeline.extract(source, masks=masks, focal=focal, options=ExtractOptions(), reporter=Reporter(quiet))
+    prior = _extract(source, masks, depth, focal, parts, start, end, stride, max_side, smooth, plot,
+                     Reporter(quiet))
     write_prior(output, prior)
+    if plot is not None:
+        plot_prior(prior, plot, title=source.name)
 
 
 def _transfer_and_render(prior, target: Path, output: Path, frames, speed, fps, background, size, reporter) -> None:
@@ -137,22 +167,22 @@ def transfer(prior: Annotated[Path, typer.Argument(help="SpaT prior .npz.")],
 @app.command()
 def run(source: Annotated[Path, typer.Argument(help="Video file or folder of frames.")],
         target: Annotated[Path, typer.Argument(help="Target image (RGB/RGBA) or 3DGS .ply.")],
-        output: Output,
-        masks: Annotated[Optional[Path], typer.Option(help="Folder of per-frame mask PNGs.")] = None,
-        focal: Annotated[Optional[float], typer.Option(help="Focal length in pixels (default: 60° FOV).")] = None,
-        parts: Annotated[str, typer.Option(help="Number of rigid parts, or 'auto'.")] = "auto",
+        output: Output, masks: Masks = None, depth: Depth = None, focal: Focal = None, parts: Parts = "auto",
+        start: Start = 0, end: End = None, stride: Stride = 1, max_side: MaxSide = pipeline.DEFAULT_MAX_SIDE,
+        smooth: Smooth = 1.0, plot: Plot = None,
         frames: Frames = None, speed: Speed = 1.0, fps: Fps = None, background: Background = "1,1,1",
         size: Size = None, quiet: Quiet = False) -> None:
     """Extract the source's motion and transfer it onto the target in one go."""
-    _parse_parts(parts)
     _transfer_checks(frames, speed, fps)
     bg, sz = _parse_rgb(background), _parse_size(size)
     _video_output(output)
     if not Path(target).exists():
         raise InputError(f"target {target} does not exist")
     reporter = Reporter(quiet)
-    prior = pipeline.extract(source, masks=masks, focal=focal, options=ExtractOptions(), reporter=reporter)
+    prior = _extract(source, masks, depth, focal, parts, start, end, stride, max_side, smooth, plot, reporter)
     _transfer_and_render(prior, target, output, frames, speed, fps, bg, sz, reporter)
+    if plot is not None:
+        plot_prior(prior, plot, title=Path(source).name)
 
 
 @app.command("render")
@@ -170,8 +200,14 @@ def render_cmd(scene: Annotated[Path, typer.Argument(help="3DGS .ply file.")],
     write_image(output, (np.clip(out.image, 0, 1) * 255 + 0.5).astype(np.uint8))
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Library warnings as one ``warning: …`` line on stderr, without source locations."""
+    print(f"warning: {str(message).splitlines()[0]}", file=sys.stderr)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point: run the CLI, turning bad input into ``error: …`` and exit code 2."""
+    warnings.showwarning = _show_warning
     try:
         app(args=argv, standalone_mode=False, prog_name="marionette")
     except typer.Exit as e:

@@ -38,8 +38,7 @@ def run_demo(out_dir: str | Path, *, reporter: Reporter | None = None, seed: int
         progress(1, 1)
     write_video(paths["source"], scene.frames, scene.fps)
 
-    with reporter.stage("extracting motion", len(scene.frames)) as progress:
-        prior = extract_prior(scene.frames, scene.masks, scene.camera.K, scene.fps, progress=progress)
+    prior = extract_prior(scene.frames, scene.masks, scene.camera.K, scene.fps, reporter=reporter)
     write_prior(paths["prior"], prior)
 
     target_rgba = render_object_image("hinge", size=(256, 256), seed=seed + 1)

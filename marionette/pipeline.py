@@ -22,6 +22,7 @@ from .prior import SpatPrior
 from .progress import Reporter
 from .render import render
 from .source import ExtractOptions, extract_prior
+from .source.depth import read_depths
 from .target.lift import LiftedTarget, LiftOptions, lift_image
 from .trajectory import Trajectory
 from .transfer.controls import retime
@@ -43,23 +44,26 @@ def source_intrinsics(width: int, height: int, focal: float | None = None) -> np
     return np.array([[f, 0, (width - 1) / 2], [0, f, (height - 1) / 2], [0, 0, 1]])
 
 
-def extract(source: str | Path, *, masks: str | Path | None = None, focal: float | None = None,
-            max_side: int = DEFAULT_MAX_SIDE, options: ExtractOptions = ExtractOptions(),
+def extract(source: str | Path, *, masks: str | Path | None = None, depth: str | Path | None = None,
+            focal: float | None = None, max_side: int = DEFAULT_MAX_SIDE, start: int = 0, end: int | None = None,
+            stride: int = 1, options: ExtractOptions = ExtractOptions(),
             reporter: Reporter | None = None) -> SpatPrior:
     """Source video (file or frame folder) → SpaT prior.
 
-    ``focal`` is in pixels of the original video; it is scaled with the
-    frames when they are downscaled.
+    ``masks`` and ``depth`` are folders with one image per source frame (or
+    per selected frame); without masks the object is found automatically.
+    ``start``, ``end``, ``stride`` select frames; frames are downscaled to a
+    long side of ``max_side``. ``focal`` is in pixels of the original video;
+    it is scaled with the frames.
     """
     reporter = reporter or Reporter(quiet=True)
-    video = read_video(source, max_side=max_side)
+    video = read_video(source, max_side=max_side, start=start, end=end, stride=stride)
     t, h, w = video.frames.shape[:3]
-    if masks is None:
-        raise InputError("this version needs per-frame masks: pass --masks DIR")
-    mask_stack = read_masks(masks, count=t, size=(w, h))
+    mask_stack = None if masks is None else read_masks(masks, count=t, size=(w, h), indices=video.indices)
+    depth_stack = None if depth is None else read_depths(depth, count=t, size=(w, h), indices=video.indices)
     k = source_intrinsics(w, h, None if focal is None else focal * video.scale)
-    with reporter.stage("extracting motion", t) as progress:
-        return extract_prior(video.frames, mask_stack, k, video.fps, options=options, progress=progress)
+    return extract_prior(video.frames, mask_stack, k, video.fps, depths=depth_stack, options=options,
+                         reporter=reporter)
 
 
 def _camera_for_splats(gaussians: Gaussians, width: int, height: int) -> Camera:

@@ -85,12 +85,22 @@ def test_render_command(tmp_path):
     (["transfer", "{prior}", "{target}", "-o", "{out}", "--background", "red"], "--background"),
     (["extract", "{tmp}/novideo.mp4", "-o", "{tmp}/p.npz"], "novideo.mp4"),
     (["extract", "{target}", "-o", "{tmp}/p.npz", "--parts", "zero"], "--parts"),
+    (["extract", "{frames}", "-o", "{tmp}/p.npz", "--stride", "0"], "stride"),
+    (["extract", "{frames}", "-o", "{tmp}/p.npz", "--start", "50"], "selected range"),
+    (["extract", "{frames}", "-o", "{tmp}/p.npz", "--smooth", "-1"], "--smooth"),
+    (["extract", "{frames}", "-o", "{tmp}/p.npz", "--plot", "{tmp}/plot.jpg"], "--plot"),
+    (["extract", "{frames}", "-o", "{tmp}/p.npz", "--masks", "{tmp}/nomasks"], "nomasks"),
+    (["extract", "{frames}", "-o", "{tmp}/p.npz", "--depth", "{tmp}/nodepth"], "nodepth"),
     (["render", "{tmp}/none.ply", "--camera", "{tmp}/none.json", "-o", "{tmp}/i.png"], "none.json"),
     (["transfer", "{prior}"], "Missing"),
     (["frobnicate"], "No such command"),
 ])
 def test_bad_input_is_one_error_line_and_exit_2(tmp_path, capsys, prior_file, target_png, args, words):
-    fill = {"prior": prior_file, "target": target_png, "out": tmp_path / "out.mp4", "tmp": tmp_path}
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i in range(3):
+        cv2.imwrite(str(frames / f"{i}.png"), np.full((24, 32, 3), 40 * i, np.uint8))
+    fill = {"prior": prior_file, "target": target_png, "out": tmp_path / "out.mp4", "tmp": tmp_path, "frames": frames}
     code = main([a.format(**fill) for a in args])
     line = one_error_line(capsys)
     assert code == 2 and words in line
@@ -125,9 +135,15 @@ def test_extract_and_run_on_a_synthetic_video(tmp_path, target_png):
     masks.mkdir()
     for i, m in enumerate(scene.masks):
         cv2.imwrite(str(masks / f"{i:05d}.png"), m.astype(np.uint8) * 255)
-    assert main(["extract", str(frames), "--masks", str(masks), "-o", str(tmp_path / "p.npz"), "-q"]) == 0
+    assert main(["extract", str(frames), "--masks", str(masks), "-o", str(tmp_path / "p.npz"), "-q",
+                 "--parts", "1", "--plot", str(tmp_path / "p.png")]) == 0
     prior = read_prior(tmp_path / "p.npz")
     assert prior.num_frames == 10 and prior.num_parts == 1
+    assert cv2.imread(str(tmp_path / "p.png")).shape[0] > 100
+    assert main(["extract", str(frames), "--masks", str(masks), "-o", str(tmp_path / "q.npz"), "-q",
+                 "--parts", "1", "--start", "2", "--stride", "2"]) == 0
+    part = read_prior(tmp_path / "q.npz")
+    assert part.num_frames == 4 and part.fps == pytest.approx(prior.fps / 2)
     assert main(["run", str(frames), str(target_png), "--masks", str(masks), "-o", str(tmp_path / "r.mp4"),
                  "-q"]) == 0
     assert read_video(tmp_path / "r.mp4").frames.shape[0] == 10

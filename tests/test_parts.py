@@ -124,6 +124,20 @@ def test_auto_finds_one_part_on_a_rigid_box(motion):
     assert (seg.pixel_labels[scene.masks[0]] == 0).all()
 
 
+def test_noise_is_estimated_from_the_tracks_and_can_be_given(hinge):
+    scene, tracks = hinge
+    clean = segment_parts(tracks, scene.masks[0], scene.camera.K, 1)
+    assert 0.05 < clean.noise < 1.0 and clean.threshold == pytest.approx(2 * clean.noise)
+    # Tracker noise of 1 px per coordinate (1.4 px RMS): the estimate follows it, the local fits
+    # see most of it (some is absorbed by the patch's own points).
+    jitter = np.random.default_rng(0).normal(0.0, 1.0, tracks.uv.shape).astype(np.float32)
+    noisy = segment_parts(Tracks(tracks.uv + jitter, tracks.visible, tracks.start), scene.masks[0],
+                          scene.camera.K, 1)
+    assert noisy.noise > clean.noise + 1.5
+    given = segment_parts(tracks, scene.masks[0], scene.camera.K, 1, noise=0.5, threshold=1.0)
+    assert (given.noise, given.threshold) == (0.5, 1.0)
+
+
 def test_one_part_labels_everything_zero(hinge):
     scene, tracks = hinge
     seg = segment_parts(tracks, scene.masks[0], scene.camera.K, 1, static=False)
@@ -150,6 +164,8 @@ def test_bad_input_is_rejected(hinge):
         segment_parts(tracks, mask, k, "many")
     with pytest.raises(InputError, match="object_mask0"):
         segment_parts(tracks, np.zeros_like(mask), k)
+    with pytest.raises(InputError, match="noise"):
+        segment_parts(tracks, mask, k, noise=-1.0)
     with pytest.raises(InputError, match="K must"):
         segment_parts(tracks, mask, np.eye(2))
     with pytest.raises(InputError, match="tracks must"):

@@ -1,43 +1,51 @@
-"""Source video → SpaT prior: tracks, rigid poses, prior (Motion Marionette stages 1 and 3).
+"""Source video → SpaT prior (Motion Marionette stages 1 and 3).
 
 The paper (Sec. 3-4.1) lifts dense 2D tracks to 3D and fits per-step rigid
-transforms (Eq. 3-5). This first path treats the masked object as one rigid
-part (K = 1) seen by a static camera, so the world frame is the camera frame
-of frame 0:
+transforms (Eq. 3-5). We do the same per rigid part, in this order:
 
-1. :func:`~marionette.source.tracks.track`: Lucas–Kanade tracks on the object;
-2. :class:`~marionette.source.rigid.ShapePrior`: the object's frame-0 volume
-   inflated from its mask, scaled to an RMS radius of 1 unit (the monocular
-   scale is unknowable);
-3. :func:`~marionette.source.rigid.fit_rigid`: per-frame pose by RANSAC PnP and
-   bundle adjustment;
-4. :func:`~marionette.source.rigid.carved_centroid`: the object's centre, from
-   the prior volume carved by all silhouettes;
-5. :meth:`~marionette.prior.SpatPrior.from_poses`: steps ``R_t, δ_t`` from the
-   poses, the centre moved by them, and the prior's radius (1 unit).
-
-Multi-part segmentation, camera-motion removal and automatic masks slot in
-before step 3 (one ``fit_rigid`` per part, on its tracks and mask).
+1. foreground: the given masks, or :func:`~marionette.source.foreground.auto_masks`
+   (salient-object model, motion segmentation, propagation);
+2. :func:`~marionette.source.tracks.track`: Lucas–Kanade tracks on the object,
+   re-seeded as it turns;
+3. :func:`~marionette.source.camera_motion.estimate_camera_motion`: the camera's
+   motion from background tracks, removed at the end so poses live in the
+   world frame (the camera frame of frame 0);
+4. :func:`~marionette.source.parts.segment_parts`: tracks grouped into rigid
+   parts (``parts=1`` skips it);
+5. per part, poses: with depth maps the paper's path
+   (:func:`~marionette.source.depth.poses_from_depth`, Umeyama per step);
+   otherwise :func:`~marionette.source.rigid.fit_rigid` (RANSAC PnP and bundle
+   adjustment) against the object's inflated silhouette, whose RMS radius of
+   1 unit fixes the monocular scale for all parts alike;
+6. :func:`~marionette.source.smoothing.smooth_poses`: SE(3) temporal smoothing;
+7. each part's centre (the prior volume carved by the silhouettes) moved by
+   its poses, and :meth:`~marionette.prior.SpatPrior.from_poses`.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ..errors import InputError
 from ..prior import SpatPrior
+from ..progress import ProgressCallback, Reporter
+from .camera_motion import estimate_camera_motion, to_world
+from .depth import poses_from_depth
+from .foreground import auto_masks
+from .parts import OFF_OBJECT, OUTLIER, STATIC, segment_parts
 from .rigid import RigidOptions, ShapePrior, carved_centroid, fit_rigid
+from .smoothing import smooth_poses
 from .tracks import Tracks, _check_video, track
 
 __all__ = ["ExtractOptions", "extract_prior"]
-
-METHOD = "anchored-lk-tracks+inflated-shape+pnp-ransac+bundle-adjustment+carved-centre"
 
 
 @dataclass(frozen=True)
@@ -50,6 +58,14 @@ class ExtractOptions:
         Tracking settings, passed to :func:`~marionette.source.tracks.track`
         (same defaults: 6 px grid, 21 px window, 3 pyramid levels, 1 px
         forward-backward threshold, re-seeding every 4 frames, texture 2e-4).
+    parts : int or "auto"
+        Number of rigid parts; ``"auto"`` picks it by model selection.
+    smoothing : float
+        Strength of the SE(3) temporal smoothing (0: off); see
+        :func:`~marionette.source.smoothing.smooth_poses`.
+    camera_motion : bool
+        Estimate and remove the camera's motion (a static camera is detected
+        as such and left alone).
     relief : float
         Half-thickness of the inflated shape prior relative to the mask's
         inscribed radius (1: a disc mask becomes a sphere).
@@ -67,51 +83,135 @@ class ExtractOptions:
     fb_threshold: float = 1.0
     reseed_every: int = 4
     min_eigen: float = 2e-4
+    parts: int | str = 1
+    smoothing: float = 1.0
+    camera_motion: bool = True
     relief: float = 1.0
     motion_threshold: float = 0.5
     rigid: RigidOptions = field(default_factory=RigidOptions)
+
+
+@dataclass
+class _Part:
+    """One rigid group while it is being fitted."""
+
+    group: int  # its label in the segmentation (STATIC for the static group)
+    pixels: np.ndarray  # (H, W) bool, its frame-0 object pixels
+    poses: np.ndarray  # (T, 4, 4), camera-frame poses until the camera motion is removed
+    centre: np.ndarray  # (3,) at frame 0
+    radius: float
 
 
 def _motion_px(tracks: Tracks) -> float:
     """Largest, over frames, median displacement (pixels) of visible tracks from their start; 0 if none."""
     first = tracks.uv[tracks.start, np.arange(tracks.num_tracks)]  # (M, 2)
     disp = np.linalg.norm(tracks.uv - first[None], axis=2)  # (T, M), NaN where not visible
-    counts = tracks.visible.sum(axis=1)
-    medians = [np.median(d[v]) for d, v, c in zip(disp, tracks.visible, counts) if c]
+    medians = [np.median(d[v]) for d, v in zip(disp, tracks.visible) if v.any()]
     return float(max(medians, default=0.0))
 
 
-def extract_prior(frames: np.ndarray, masks: np.ndarray, camera_K: np.ndarray, fps: float, *,
-                  options: ExtractOptions = ExtractOptions(),
-                  progress: Callable[[int, int], None] | None = None) -> SpatPrior:
-    """Extract the SpaT prior of one rigidly moving object from a video with masks.
+def _subset(tracks: Tracks, keep: np.ndarray) -> Tracks:
+    return Tracks(tracks.uv[:, keep], tracks.visible[:, keep], tracks.start[keep])
+
+
+def _propagate_labels(tracks: Tracks, labels: np.ndarray, unlabelled: int, radius: float,
+                      neighbours: int = 5) -> np.ndarray:
+    """Give unlabelled tracks (M,) the majority label of their labelled neighbours where they start.
+
+    Tracks seeded after frame 0 (re-seeded as a part turns) are often too
+    short for the segmentation to judge; at their first frame they sit among
+    tracks of one part. Frames are visited in order, so a newly labelled
+    track vouches for later ones. Tracks with no labelled neighbour within
+    ``radius`` pixels keep ``unlabelled``.
+    """
+    labels = labels.copy()
+    for t in np.unique(tracks.start):
+        todo = np.nonzero((tracks.start == t) & (labels == unlabelled))[0]
+        known = np.nonzero(tracks.visible[t] & (labels != unlabelled))[0]
+        if not len(todo) or not len(known):
+            continue
+        dist, idx = cKDTree(tracks.uv[t, known]).query(tracks.uv[t, todo], k=min(neighbours, len(known)),
+                                                       distance_upper_bound=radius)
+        dist, idx = dist.reshape(len(todo), -1), idx.reshape(len(todo), -1)
+        for m, d, i in zip(todo, dist, idx):
+            votes = labels[known[i[np.isfinite(d)]]]
+            if len(votes):
+                values, counts = np.unique(votes, return_counts=True)
+                labels[m] = values[counts.argmax()]
+    return labels
+
+
+def _check_inputs(camera_K, fps, depths, shape: tuple[int, int, int]) -> np.ndarray:
+    k = np.asarray(camera_K, dtype=np.float64) if isinstance(camera_K, (np.ndarray, list, tuple)) else None
+    if k is None or k.shape != (3, 3) or not np.all(np.isfinite(k)) or not (k[0, 0] > 0 and k[1, 1] > 0):
+        raise InputError(f"camera_K must be a finite 3x3 matrix with positive focal lengths, got {camera_K!r}")
+    if isinstance(fps, bool) or not isinstance(fps, (int, float, np.number)) or not (np.isfinite(fps) and fps > 0):
+        raise InputError(f"fps must be a positive number, got {fps!r}")
+    if depths is not None and np.shape(depths) != shape:
+        raise InputError(f"depths must have shape {shape} like the frames, got {np.shape(depths)}")
+    return k
+
+
+class _Stages:
+    """Progress bars and wall-clock timings of the extraction stages."""
+
+    def __init__(self, reporter: Reporter) -> None:
+        self.reporter = reporter
+        self.timings: dict[str, float] = {}
+
+    @contextlib.contextmanager
+    def __call__(self, key: str, description: str, total: int | None = None) -> Iterator[ProgressCallback]:
+        start = time.perf_counter()
+        with self.reporter.stage(description, total) as progress:
+            yield progress
+        self.timings[key] = self.timings.get(key, 0.0) + time.perf_counter() - start
+
+
+def _depth_shape(mask: np.ndarray, depth: np.ndarray, k: np.ndarray, relief: float) -> ShapePrior:
+    """The frame-0 volume behind a measured front depth, as thick as the inflated silhouette."""
+    guess = ShapePrior.inflate(mask, k, relief=relief)
+    front = np.where(mask & np.isfinite(depth) & (depth > 0), depth, np.nan)
+    if not np.isfinite(front).any():
+        raise InputError("the depth map of frame 0 has no valid depth on the object")
+    scale = np.nanmedian(front) / np.nanmedian(guess.front)
+    back = front + scale * (guess.back - guess.front)
+    return ShapePrior.from_depths(front, back, k)
+
+
+def extract_prior(frames: np.ndarray, masks: np.ndarray | None, camera_K: np.ndarray, fps: float, *,
+                  depths: np.ndarray | None = None, options: ExtractOptions = ExtractOptions(),
+                  reporter: Reporter | None = None) -> SpatPrior:
+    """Extract the SpaT prior of a rigidly moving object (one or more parts) from a video.
 
     Parameters
     ----------
     frames : ndarray, shape (T, H, W, 3), uint8
-        RGB frames, T >= 2, from a static camera.
-    masks : ndarray, shape (T, H, W), bool or integer
-        Object masks (non-zero = object); frame 0's must not be empty.
+        RGB frames, T >= 2.
+    masks : ndarray, shape (T, H, W), bool or integer, or None
+        Object masks (non-zero = object); frame 0's must not be empty. None:
+        found automatically.
     camera_K : ndarray, shape (3, 3)
         Intrinsics of the source camera.
     fps : float
         Source frame rate.
+    depths : ndarray, shape (T, H, W), float, optional
+        Per-frame depth maps (z, any unit; non-positive or NaN = unknown):
+        the paper's lifting path. Poses and radii are then in their unit.
     options : ExtractOptions
-    progress : callable(done, total), optional
-        Called as work proceeds, ``total = 2 T - 1`` (tracking steps, pose
-        frames, refinement).
+    reporter : Reporter, optional
+        Progress bars per stage.
 
     Returns
     -------
     SpatPrior
-        One part (K = 1); poses (1, T, 4, 4) in the camera frame of frame 0,
-        in units where the object's shape prior has an RMS radius of
-        ``radii[0]`` = 1; centroids (1, T, 3) its carved centre moved by the
-        poses.
+        K parts, part 0 the largest (frame-0 pixels); poses (K, T, 4, 4) in
+        the world frame (camera frame of frame 0). Without depth maps the
+        units make the whole object's shape prior 1 unit in RMS radius.
         Extras: ``tracks_uv`` (T, M, 2) float32, ``tracks_visible`` (T, M)
-        bool, ``labels`` (H, W) int16 (0 on the frame-0 object, -1 elsewhere).
-        Metadata: method, options, failed frames with reasons, track count,
-        reprojection RMS and per-stage timings in seconds.
+        bool, ``track_labels`` (M,) int16 (part, -1 unused), ``labels``
+        (H, W) int16 (part of each frame-0 object pixel, -1 elsewhere).
+        Metadata: method, options, camera motion, per-stage timings, failed
+        frames with reasons, track count, reprojection RMS.
 
     Warns
     -----
@@ -120,67 +220,110 @@ def extract_prior(frames: np.ndarray, masks: np.ndarray, camera_K: np.ndarray, f
         identity prior is returned), or when the pose of some frames could not
         be estimated (they are interpolated).
     """
+    frames = np.asarray(frames)
+    k = _check_inputs(camera_K, fps, depths, frames.shape[:3])
+    stages = _Stages(reporter or Reporter(quiet=True))
+    start = time.perf_counter()
+    if masks is None:
+        with stages("foreground", "finding the object", len(frames)) as progress:
+            masks = auto_masks(frames, progress=progress)
     frames, masks = _check_video(frames, masks)
-    k = np.asarray(camera_K, dtype=np.float64) if isinstance(camera_K, (np.ndarray, list, tuple)) else None
-    if k is None or k.shape != (3, 3) or not np.all(np.isfinite(k)) or not (k[0, 0] > 0 and k[1, 1] > 0):
-        raise InputError(f"camera_K must be a finite 3x3 matrix with positive focal lengths, got {camera_K!r}")
-    if isinstance(fps, bool) or not isinstance(fps, (int, float, np.number)) or not (np.isfinite(fps) and fps > 0):
-        raise InputError(f"fps must be a positive number, got {fps!r}")
     num_frames, h, w = masks.shape
     if num_frames < 2:
         raise InputError(f"the source video needs at least 2 frames, got {num_frames}")
-    total = 2 * num_frames - 1
 
-    def stage(offset: int) -> Callable[[int, int], None] | None:
-        return None if progress is None else (lambda done, _: progress(offset + done, total))
-
-    timings: dict[str, float] = {}
-    t0 = time.perf_counter()
-    tracks = track(frames, masks, spacing=options.spacing, window=options.window, levels=options.levels,
-                   fb_threshold=options.fb_threshold, reseed_every=options.reseed_every,
-                   min_eigen=options.min_eigen, progress=stage(0))
-    t1 = time.perf_counter()
-    shape = ShapePrior.inflate(masks[0], k, relief=options.relief)
-    timings["tracking"], timings["shape"] = t1 - t0, time.perf_counter() - t1
-
-    labels = np.where(masks[0], 0, -1).astype(np.int16)
-    extras = {"tracks_uv": tracks.uv, "tracks_visible": tracks.visible, "labels": labels}
-    metadata = {"method": METHOD, "options": dataclasses.asdict(options), "num_tracks": tracks.num_tracks,
-                "camera_motion": "assumed static", "timings": timings}
+    with stages("tracking", "tracking", num_frames - 1) as progress:
+        tracks = track(frames, masks, spacing=options.spacing, window=options.window, levels=options.levels,
+                       fb_threshold=options.fb_threshold, reseed_every=options.reseed_every,
+                       min_eigen=options.min_eigen, progress=progress)
+    camera = None
+    if options.camera_motion:
+        with stages("camera", "camera motion", 1) as progress:
+            camera = estimate_camera_motion(frames, masks, k)
+            progress(1, 1)
+    metadata = {"method": "lk-tracks+" + ("depth-umeyama" if depths is not None else "inflated-shape+pnp+ba"),
+                "options": dataclasses.asdict(options), "num_tracks": tracks.num_tracks,
+                "camera_motion": "not estimated" if camera is None else ("static" if camera.static else "removed"),
+                "timings": stages.timings}
     common = dict(fps=fps, image_size=(w, h), intrinsics=k)
+    extras = {"tracks_uv": tracks.uv, "tracks_visible": tracks.visible}
+    whole = (_depth_shape(masks[0], depths[0], k, options.relief) if depths is not None
+             else ShapePrior.inflate(masks[0], k, relief=options.relief))
 
-    motion = _motion_px(tracks)
+    motion = _motion_px(tracks) if camera is None or camera.static else np.inf
     few = tracks.num_tracks < options.rigid.min_points
     if few or motion < options.motion_threshold:
         reason = (f"only {tracks.num_tracks} trackable points on the object (too little texture, or a tiny mask)"
                   if few else f"no motion detected (median track displacement {motion:.2f} px < "
                   f"{options.motion_threshold} px)")
         warnings.warn(f"{reason}: returning the identity prior", stacklevel=2)
-        timings["total"] = time.perf_counter() - t0
+        stages.timings["total"] = time.perf_counter() - start
         metadata.update(failed_frames={}, no_motion=not few, motion_px=motion)
-        prior = SpatPrior.identity(num_frames, centroid=shape.centroid, radius=shape.radius,
-                                   metadata=metadata, **common)
-        if progress is not None:
-            progress(total, total)
+        extras.update(track_labels=np.zeros(tracks.num_tracks, np.int16),
+                      labels=np.where(masks[0], 0, -1).astype(np.int16))
+        prior = SpatPrior.identity(num_frames, centroid=whole.centroid, radius=whole.radius, metadata=metadata,
+                                   **common)
         return dataclasses.replace(prior, extras=extras)
 
-    fit = fit_rigid(tracks, shape, options=options.rigid, progress=stage(num_frames - 1))
-    timings.update(fit.timings)
-    t2 = time.perf_counter()
-    good = np.array([t for t in range(num_frames) if t not in fit.failed_frames])
-    centre = carved_centroid(shape, masks, fit.poses, good)
-    timings["centre"] = time.perf_counter() - t2
-    timings["total"] = time.perf_counter() - t0
-    if fit.failed_frames:
-        listed = ", ".join(str(t) for t in list(fit.failed_frames)[:10])
-        more = "…" if len(fit.failed_frames) > 10 else ""
-        warnings.warn(f"pose estimation failed at {len(fit.failed_frames)} of {num_frames} frames "
-                      f"({listed}{more}); their poses are interpolated (see metadata 'failed_frames')",
-                      stacklevel=2)
-    poses = fit.poses[None]  # (1, T, 4, 4)
-    centroids = poses[..., :3, :3] @ centre + poses[..., :3, 3]  # (1, T, 3)
-    metadata.update(failed_frames={str(t): r for t, r in fit.failed_frames.items()}, no_motion=False,
-                    motion_px=motion, reprojection_rms_px=fit.reprojection_rms,
-                    inlier_tracks=int(fit.inliers.any(axis=0).sum()))
-    return SpatPrior.from_poses(poses, centroids, np.array([shape.radius]), extras=extras, metadata=metadata,
-                                **common)
+    if options.parts == 1:
+        track_labels = np.zeros(tracks.num_tracks, np.int64)
+        pixel_labels = np.where(masks[0], 0, OFF_OBJECT)
+        groups = [0]
+    else:
+        with stages("parts", "finding parts", 1) as progress:
+            seg = segment_parts(tracks, masks[0], k, options.parts)
+            progress(1, 1)
+        track_labels = _propagate_labels(tracks, seg.track_labels, OUTLIER, radius=3.0 * options.spacing)
+        pixel_labels = seg.pixel_labels
+        groups = list(range(seg.num_parts)) + ([STATIC] if (pixel_labels == STATIC).any() else [])
+        metadata["part_selection"] = {str(n): float(score) for n, score in seg.scores.items()}
+
+    parts, failed, rms = [], {}, []
+    with stages("poses", "fitting poses", len(groups) * num_frames) as progress:
+        for i, g in enumerate(groups):
+            pixels = pixel_labels == g
+            members = track_labels == g
+            shape = ShapePrior.from_depths(np.where(pixels, whole.front, np.nan), np.where(pixels, whole.back, np.nan), k)
+
+            def step(done: int, total: int, i=i) -> None:
+                progress(i * num_frames + round(done * num_frames / max(total, 1)), len(groups) * num_frames)
+
+            if g == STATIC or members.sum() < options.rigid.min_points:
+                poses = np.tile(np.eye(4), (num_frames, 1, 1))  # static, or too few tracks to tell
+            elif depths is not None:
+                poses = poses_from_depth(_subset(tracks, members), depths, k)
+            else:
+                fit = fit_rigid(_subset(tracks, members), shape, options=options.rigid, progress=step)
+                poses = fit.poses
+                failed.update({f"{i}:{t}": r for t, r in fit.failed_frames.items()})
+                rms.append(fit.reprojection_rms)
+            centre = carved_centroid(shape, masks, poses, np.arange(num_frames))
+            parts.append(_Part(g, pixels, poses, centre, shape.radius))
+
+    parts.sort(key=lambda p: -p.pixels.sum())
+    poses = np.stack([p.poses for p in parts])  # (K, T, 4, 4) in camera coordinates
+    if camera is not None and not camera.static:
+        poses = to_world(poses, camera)
+    centres = np.stack([p.centre for p in parts])  # (K, 3)
+    if options.smoothing > 0:
+        with stages("smoothing", "smoothing", 1) as progress:
+            poses = smooth_poses(poses, options.smoothing, centers=centres)
+            progress(1, 1)
+    centroids = np.einsum("ktij,kj->kti", poses[..., :3, :3], centres) + poses[..., :3, 3]
+
+    labels = np.full((h, w), -1, np.int16)
+    track_parts = np.full(tracks.num_tracks, -1, np.int16)  # outliers stay -1
+    for index, part in enumerate(parts):
+        labels[part.pixels] = index
+        track_parts[track_labels == part.group] = index
+    extras.update(labels=labels, track_labels=track_parts)
+
+    if failed:
+        listed = ", ".join(list(failed)[:10])
+        warnings.warn(f"pose estimation failed at {len(failed)} part-frames ({listed}{'…' if len(failed) > 10 else ''}); "
+                      "their poses are interpolated (see metadata 'failed_frames')", stacklevel=2)
+    stages.timings["total"] = time.perf_counter() - start
+    metadata.update(failed_frames=failed, no_motion=False, motion_px=float(motion), num_parts=len(parts),
+                    reprojection_rms_px=float(np.mean(rms)) if rms else None)
+    return SpatPrior.from_poses(poses, centroids, np.array([p.radius for p in parts]), extras=extras,
+                                metadata=metadata, **common)

@@ -53,8 +53,17 @@ with spatial smoothing in the spirit of PEARL (Isack & Boykov, IJCV 2012):
    off only when it explains tracks that were unexplained (or explained
    markedly worse); each pose parameter costs ``penalty`` observations at
    the cap. On the synthetic scenes (``benchmarks/bench_parts.py``), at the
-   default ``penalty = 3``, the spurious splits measured gained 0.2-0.9 of
-   the penalty, the hinge's lid about 5 times it: the margin is thin.
+   default ``penalty = 3`` and the former fixed σ = 0.5 px, the spurious
+   splits measured gained 0.2-0.9 of the penalty, the hinge's lid about 5
+   times it: the margin is thin.
+
+The noise σ is estimated from the data unless given: the rigid motions of
+small patches of tracks (a dozen, spread over the object at frame 0) are
+fitted to their own tracks, which measures the tracker's error without the
+motion between parts; σ is 3 times the median RMS reprojection error of the
+patch tracks, the threshold 2 σ. Both the truncation and the ``auto``
+criterion use them, so they follow the footage (real tracks are noisier
+than synthetic ones).
 
 Tracks visible in fewer than ``min_length`` (subsampled) frames, and tracks
 no motion explains within ``threshold``, are labelled :data:`OUTLIER`.
@@ -88,6 +97,14 @@ OFF_OBJECT = -3
 # A point moving by a quarter of its depth away from its prior costs as much
 # as one pixel of reprojection error in one frame (weak: parallax decides).
 _DEPTH_PRIOR = 16.0
+# Default σ: this multiple of the median RMS error of tracks under the motion of their local patch
+# (:func:`_estimate_noise`, _NOISE_PATCHES patches of _NOISE_PATCH tracks; a fit this local also
+# absorbs part of the error, and tracker errors have heavier tails than Gaussian ones). The
+# threshold: this multiple of σ. Measured on the synthetic scenes: σ 0.17-0.64 px.
+_NOISE_SCALE = 3.0
+_THRESHOLD_SCALE = 2.0
+_NOISE_PATCHES = 16
+_NOISE_PATCH = 12
 
 
 class _Motion(NamedTuple):
@@ -126,6 +143,8 @@ class PartSegmentation:
     residuals : (M,) float64
         RMS reprojection error (pixels) of each track under the model of its
         label; NaN for tracks too short to fit.
+    noise, threshold : float
+        σ and the threshold used (pixels), given or estimated.
     """
 
     track_labels: np.ndarray
@@ -133,6 +152,8 @@ class PartSegmentation:
     pixel_labels: np.ndarray
     scores: dict[int, float] = field(default_factory=dict)
     residuals: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    noise: float = np.nan
+    threshold: float = np.nan
 
 
 # ------------------------------------------------------------------ rigid motion model
@@ -440,12 +461,43 @@ def _icm(costs: np.ndarray, graph: sparse.csr_matrix, beta: float, labels: np.nd
     return labels
 
 
-def _patch(problem: _Problem, uv: np.ndarray, pool: np.ndarray, seed: int, size: int) -> np.ndarray:
-    """The ``size`` tracks of ``pool`` nearest to track ``seed`` in the frame where it starts."""
-    t = problem.start[seed]
-    here = pool[problem.vis[t, pool]]
-    d = np.linalg.norm(uv[t, here] - uv[t, seed], axis=1)
-    return np.sort(here[np.argsort(d)[:size]])
+def _patch(xy: np.ndarray, ids: np.ndarray, seed: int, size: int) -> np.ndarray:
+    """The ``size`` tracks of ``ids`` nearest to track ``seed`` at positions ``xy`` (U, 2)."""
+    d = np.linalg.norm(xy[ids] - xy[seed], axis=1)
+    return np.sort(ids[np.argsort(d)[:size]])
+
+
+def _spread(xy: np.ndarray, ids: np.ndarray, count: int) -> np.ndarray:
+    """``count`` of the tracks ``ids`` spread over their positions ``xy[ids]`` (xy (U, 2)).
+
+    Farthest-point sampling from the track nearest their centre.
+    """
+    xy = xy[ids]
+    dist = np.linalg.norm(xy - xy.mean(axis=0), axis=1)
+    seeds = [int(np.argmin(dist))]
+    dist = np.linalg.norm(xy - xy[seeds[0]], axis=1)
+    for _ in range(min(count, len(ids)) - 1):
+        seeds.append(int(np.argmax(dist)))
+        dist = np.minimum(dist, np.linalg.norm(xy - xy[seeds[-1]], axis=1))
+    return ids[seeds]
+
+
+def _estimate_noise(problem: _Problem, uv: np.ndarray, patches: int, size: int) -> float:
+    """Tracking noise (pixels): median RMS reprojection error of tracks under the rigid motion of their patch.
+
+    The rigid motions of ``patches`` small patches of ``size`` tracks
+    (spread over the object at frame 0), each fitted to its own tracks: a
+    patch this small rarely straddles two parts, so what is left is the
+    tracker's error, not the motion between parts (unlike the residuals
+    of a one-part fit).
+    """
+    first = np.nonzero(problem.vis[0])[0]
+    rms = []
+    for seed in _spread(uv[0], first, patches):
+        members = _patch(uv[0], first, seed, size)
+        errors = _errors(problem, _fit(problem, members), members)
+        rms.append(np.sqrt(errors[np.isfinite(errors)]))
+    return float(np.median(np.concatenate(rms)))
 
 
 def _new_part(problem: _Problem, uv: np.ndarray, pool: np.ndarray, hypotheses: int, patch: int,
@@ -453,29 +505,19 @@ def _new_part(problem: _Problem, uv: np.ndarray, pool: np.ndarray, hypotheses: i
     """Best rigid motion for the tracks ``pool`` no model explains yet (a sequential RANSAC step).
 
     Hypotheses: the motion of all of ``pool`` and of ``hypotheses`` local
-    patches around random seeds (longer tracks more likely). Each is
-    refitted to the tracks it explains (RMS below the threshold) while that
-    lowers its cost, the truncated quadratic over the pool (MSAC, Torr &
-    Zisserman, CVIU 2000), and the cheapest wins: unlike a count of inliers,
-    it prefers a motion that explains its tracks exactly to a compromise
-    between two parts that explains both roughly.
+    patches spread over the part of the object at frame 0 no motion
+    explains yet. Each is refitted to the tracks it explains (RMS below the
+    threshold) while that lowers its cost, the truncated quadratic over the
+    pool (MSAC, Torr & Zisserman, CVIU 2000), and the cheapest wins: unlike
+    a count of inliers, it prefers a motion that explains its tracks exactly
+    to a compromise between two parts that explains both roughly.
     """
     threshold = problem.cap * problem.noise**2
     probe = pool if len(pool) <= 4 * problem.fit_tracks else np.sort(
         problem.rng.choice(pool, 4 * problem.fit_tracks, replace=False))
     first = pool[problem.vis[0, pool]]
-    # Seeds spread over the unexplained part of the object at frame 0: farthest-point sampling
-    # from the track nearest its centre.
-    xy = uv[0, first]
-    dist = np.linalg.norm(xy - xy.mean(axis=0), axis=1)
-    seeds = [int(np.argmin(dist))]
-    dist = np.linalg.norm(xy - xy[seeds[0]], axis=1)
-    for _ in range(min(hypotheses, len(first)) - 1):
-        seeds.append(int(np.argmax(dist)))
-        dist = np.minimum(dist, np.linalg.norm(xy - xy[seeds[-1]], axis=1))
-    seeds = first[seeds]
     best, best_cost = None, np.inf
-    for members in [pool] + [_patch(problem, uv, first, s, patch) for s in seeds]:
+    for members in [pool] + [_patch(uv[0], first, s, patch) for s in _spread(uv[0], first, hypotheses)]:
         motion = _fit(problem, members)
         errors = _errors(problem, motion, probe)
         cost = _robust(problem, errors, probe).sum()
@@ -578,7 +620,8 @@ def _pixel_labels(positions: np.ndarray, labels: np.ndarray, mask: np.ndarray, k
 
 
 def segment_parts(tracks: Tracks, object_mask0: np.ndarray, K: np.ndarray, num_parts: int | str = "auto", *,
-                  max_parts: int = 4, noise: float = 0.5, threshold: float = 1.0, penalty: float = 3.0,
+                  max_parts: int = 4, noise: float | None = None, threshold: float | None = None,
+                  penalty: float = 3.0,
                   smoothness: float = 3.0, neighbours: int = 8, min_length: int = 4, static: bool = True,
                   max_frames: int = 24, hypotheses: int = 4, patch: int = 24, fit_tracks: int = 100,
                   rounds: int = 2, seed: int = 0) -> PartSegmentation:
@@ -599,12 +642,14 @@ def segment_parts(tracks: Tracks, object_mask0: np.ndarray, K: np.ndarray, num_p
         least 8) to start another.
     max_parts : int
         Most moving parts ``"auto"`` considers.
-    noise : float
+    noise : float or None
         σ, the expected reprojection error (pixels) of a track under its
-        part's rigid motion.
-    threshold : float
+        part's rigid motion; None: estimated from the tracks (see the
+        module docstring), reported in the result.
+    threshold : float or None
         A track is explained by a motion when its RMS reprojection error is
-        below this (pixels); above it, all motions cost it the same.
+        below this (pixels); above it, all motions cost it the same. None:
+        2 σ.
     penalty : float
         Cost of one pose parameter (6 per frame step and part) in units of
         an observation at the ``threshold``; larger prefers fewer parts.
@@ -644,7 +689,7 @@ def segment_parts(tracks: Tracks, object_mask0: np.ndarray, K: np.ndarray, num_p
     if not auto and (isinstance(num_parts, (bool, str)) or int(num_parts) != num_parts or num_parts < 1):
         raise InputError(f"segment_parts: num_parts must be 'auto' or an integer >= 1, got {num_parts!r}")
     for name, value in (("noise", noise), ("threshold", threshold), ("penalty", penalty)):
-        if not (np.isfinite(value) and value > 0):
+        if value is not None and not (np.isfinite(value) and value > 0):
             raise InputError(f"segment_parts: {name} must be a positive number, got {value!r}")
 
     # Rigidity shows as well on every other frame of a long clip: keep at most ``max_frames``.
@@ -662,9 +707,13 @@ def segment_parts(tracks: Tracks, object_mask0: np.ndarray, K: np.ndarray, num_p
     focal = float(np.sqrt(K[0, 0] * K[1, 1]))
     frames = vis.sum(axis=0)
     problem = _Problem(obs=np.where(vis[..., None], obs, 0.0), vis=vis, start=np.argmax(vis, axis=0),
-                       frames=frames, focal=focal, prior_weight=_DEPTH_PRIOR / focal**2, noise=float(noise),
-                       cap=float(threshold / noise) ** 2, fit_tracks=int(fit_tracks),
-                       rng=np.random.default_rng(seed))
+                       frames=frames, focal=focal, prior_weight=_DEPTH_PRIOR / focal**2, noise=np.nan, cap=np.nan,
+                       fit_tracks=int(fit_tracks), rng=np.random.default_rng(seed))
+    if noise is None:
+        noise = _NOISE_SCALE * _estimate_noise(problem, uv, _NOISE_PATCHES, _NOISE_PATCH)
+    if threshold is None:
+        threshold = _THRESHOLD_SCALE * noise
+    problem = problem._replace(noise=float(noise), cap=float(threshold / noise) ** 2)
     graph = _neighbour_graph(uv, vis, problem.start, neighbours)
     beta = smoothness * problem.cap * float(np.median(frames)) / neighbours
     levels = _grow(problem, uv, graph, beta, static, max_parts if auto else int(num_parts), min_part,
@@ -706,4 +755,5 @@ def segment_parts(tracks: Tracks, object_mask0: np.ndarray, K: np.ndarray, num_p
         positions = tracks.uv[tracks.start[at0], np.nonzero(at0)[0]]
     pixel_labels = _pixel_labels(positions.astype(np.float64), np.maximum(labels[at0], STATIC), mask)
     return PartSegmentation(track_labels=labels, num_parts=int(len(order)), pixel_labels=pixel_labels,
-                            scores={p: level.score for p, level in levels.items()}, residuals=residuals)
+                            scores={p: level.score for p, level in levels.items()}, residuals=residuals,
+                            noise=problem.noise, threshold=float(threshold))

@@ -528,7 +528,7 @@ def _align_affine(ref: np.ndarray, ref_mask: np.ndarray, cur: np.ndarray, p_ref:
 
 def track(frames: np.ndarray, masks: np.ndarray, *, spacing: int = 6, window: int = 21, levels: int = 3,
           fb_threshold: float = 1.0, reseed_every: int = 4, min_eigen: float = 2e-4,
-          border: int = 4, mask_tolerance: int = 3,
+          border: int = 4, mask_tolerance: int = 3, refine: bool = True,
           progress: Callable[[int, int], None] | None = None) -> Tracks:
     """Track a grid of object points through a video with pyramidal Lucas–Kanade.
 
@@ -562,6 +562,11 @@ def track(frames: np.ndarray, masks: np.ndarray, *, spacing: int = 6, window: in
     mask_tolerance : int
         A track dies when it leaves the mask dilated by this many pixels
         (masks are rarely exact at the boundary).
+    refine : bool
+        Refine each LK step within the mask and align against the track's
+        anchor frame (no drift; the default). Off: plain pyramidal LK with
+        the forward-backward check, several times faster, for sparse
+        background tracks whose drift matters less.
     progress : callable(done, total), optional
         Called after each frame step with ``total = T - 1``.
 
@@ -610,8 +615,8 @@ def track(frames: np.ndarray, masks: np.ndarray, *, spacing: int = 6, window: in
         texture, cur, cur_grey, cur_mask = load(t)
         if len(pts):
             fwd, st_f, _ = cv2.calcOpticalFlowPyrLK(prev_grey, cur_grey, pts[:, None], None, **lk)
-            fwd = _refine_masked(prev, cur, prev_mask, pts, fwd[:, 0], window)
-            for a in np.unique(anchor):
+            fwd = _refine_masked(prev, cur, prev_mask, pts, fwd[:, 0], window) if refine else fwd[:, 0]
+            for a in np.unique(anchor) if refine else ():
                 sel = np.nonzero(anchor == a)[0]
                 p, aff, res = _align_affine(*images[a], cur, anchor_pts[sel], fwd[sel], warp[sel], window)
                 det = np.linalg.det(aff)
@@ -624,7 +629,7 @@ def track(frames: np.ndarray, masks: np.ndarray, *, spacing: int = 6, window: in
                 anchor_pts[sel[~good]] = fwd[sel[~good]]
                 warp[sel[~good]] = np.eye(2)
             back, st_b, _ = cv2.calcOpticalFlowPyrLK(cur_grey, prev_grey, fwd[:, None], None, **lk)
-            back = _refine_masked(cur, prev, cur_mask, fwd, back[:, 0], window)
+            back = _refine_masked(cur, prev, cur_mask, fwd, back[:, 0], window) if refine else back[:, 0]
             keep = (st_f[:, 0] == 1) & (st_b[:, 0] == 1)
             keep &= np.linalg.norm(back - pts, axis=1) <= fb_threshold
             keep &= _inside(fwd, cv2.dilate(masks[t].astype(np.uint8), tolerance).astype(bool))

@@ -1,0 +1,190 @@
+"""Whole-source extraction (``marionette.source.extract``): stages wired together, on inputs with known answers."""
+
+from __future__ import annotations
+
+import json
+import warnings
+
+import numpy as np
+import pytest
+from test_source import H, K, W, disc, rotation_errors, wave_texture
+
+from marionette.errors import InputError
+from marionette.geometry import rotation_angle_deg
+from marionette.progress import Reporter
+from marionette.source import ExtractOptions, extract_prior
+from marionette.source.rigid import RigidOptions
+from marionette.synthetic import make_scene
+
+
+def centroid_errors(prior, scene, part: int = 0, gt_part: int = 0) -> np.ndarray:
+    """Per-frame centroid error in % of the ground-truth radius, after one best scale factor."""
+    est, gt = prior.centroids[part], scene.centroids()[gt_part]
+    scale = (est * gt).sum() / (est * est).sum()  # the prior's scale is arbitrary: one best factor
+    return np.linalg.norm(scale * est - gt, axis=1) / scene.radii()[gt_part] * 100
+
+
+def test_still_video_warns_and_returns_identity():
+    frames = np.repeat(wave_texture()[None], 4, axis=0)
+    masks = np.repeat(disc(60)[None], 4, axis=0)
+    with pytest.warns(UserWarning, match="no motion"):
+        prior = extract_prior(frames, masks, K, 24.0)
+    np.testing.assert_array_equal(prior.poses, np.tile(np.eye(4), (1, 4, 1, 1)))
+    assert prior.metadata["no_motion"] is True
+    assert prior.extras["tracks_uv"].shape[:2] == (4, prior.metadata["num_tracks"])
+    np.testing.assert_allclose(prior.centroids[0], np.tile(prior.centroids[0, :1], (4, 1)))
+
+
+def test_textureless_object_warns_and_returns_identity():
+    frames = np.full((4, H, W, 3), 200, np.uint8)
+    frames[:, 60:180, 100:220] = 90  # a flat grey square: nothing trackable
+    masks = np.zeros((4, H, W), bool)
+    masks[:, 60:180, 100:220] = True
+    with pytest.warns(UserWarning, match="only 0 trackable points"):
+        prior = extract_prior(frames, masks, K, 24.0)
+    np.testing.assert_array_equal(prior.poses, np.tile(np.eye(4), (1, 4, 1, 1)))
+    assert prior.metadata["no_motion"] is False
+
+
+def test_shifted_texture_is_a_pure_translation():
+    # The whole frame shifts, so the camera is declared static: the background would say it panned.
+    step = (1.5, 0.5)
+    frames = np.stack([wave_texture((step[0] * t, step[1] * t)) for t in range(8)])
+    masks = np.stack([disc(70, (W / 2 + step[0] * t, H / 2 + step[1] * t)) for t in range(8)])
+    prior = extract_prior(frames, masks, K, 30.0, options=ExtractOptions(camera_motion=False))
+    assert prior.num_parts == 1 and prior.num_frames == 8 and prior.fps == 30.0
+    assert rotation_angle_deg(prior.poses[0, :, :3, :3]).max() < 0.5
+    move = prior.centroids[0, -1] - prior.centroids[0, 0]  # parallel to the image plane, along the shift
+    assert abs(move[2]) < 0.05 * np.linalg.norm(move)
+    assert np.degrees(np.arccos(move[:2] @ step / np.linalg.norm(move[:2]) / np.linalg.norm(step))) < 2.0
+    labels = prior.extras["labels"]
+    assert labels.dtype == np.int16 and labels.shape == (H, W) and set(np.unique(labels)) == {-1, 0}
+    assert prior.extras["tracks_visible"].dtype == bool and prior.extras["tracks_uv"].dtype == np.float32
+    assert set(np.unique(prior.extras["track_labels"])) <= {-1, 0}
+    meta = json.loads(prior.metadata_json())
+    assert meta["failed_frames"] == {} and meta["num_tracks"] > 100 and meta["camera_motion"] == "not estimated"
+    assert {"tracking", "poses", "total"} <= set(meta["timings"])
+
+
+def test_options_reach_the_stages_and_the_metadata():
+    step = (1.5, 0.5)
+    frames = np.stack([wave_texture((step[0] * t, step[1] * t)) for t in range(4)])
+    masks = np.stack([disc(70, (W / 2 + step[0] * t, H / 2 + step[1] * t)) for t in range(4)])
+    dense = extract_prior(frames, masks, K, 30.0)
+    options = ExtractOptions(spacing=12, smoothing=0.0, rigid=RigidOptions(refine=False))
+    sparse = extract_prior(frames, masks, K, 30.0, options=options)
+    assert sparse.metadata["num_tracks"] < 0.5 * dense.metadata["num_tracks"]
+    assert sparse.metadata["options"]["spacing"] == 12 and sparse.metadata["options"]["rigid"]["refine"] is False
+    assert "smoothing" not in sparse.metadata["timings"] and "smoothing" in dense.metadata["timings"]
+
+
+@pytest.mark.parametrize("args, words", [
+    ((np.eye(2), 24.0), "camera_K"),
+    ((np.full((3, 3), np.nan), 24.0), "camera_K"),
+    ((K, 0.0), "fps"),
+    ((K, "24"), "fps"),
+])
+def test_bad_input(args, words):
+    frames = np.repeat(wave_texture()[None], 2, axis=0)
+    with pytest.raises(InputError, match=words):
+        extract_prior(frames, np.ones((2, H, W), bool), *args)
+
+
+def test_needs_two_frames():
+    with pytest.raises(InputError, match="at least 2 frames"):
+        extract_prior(wave_texture()[None], disc(50)[None], K, 24.0)
+
+
+def test_progress_is_reported_per_stage():
+    seen = []
+
+    class Recorder(Reporter):
+        def stage(self, description, total=None):
+            seen.append(description)
+            return super().stage(description, total)
+
+    step = (1.5, 0.5)
+    frames = np.stack([wave_texture((step[0] * t, step[1] * t)) for t in range(4)])
+    masks = np.stack([disc(70, (W / 2 + step[0] * t, H / 2 + step[1] * t)) for t in range(4)])
+    extract_prior(frames, masks, K, 30.0, reporter=Recorder(quiet=True))
+    assert seen[:2] == ["tracking", "camera motion"] and "fitting poses" in seen
+
+
+# Limits: the worst of seeds 0-2 at this small size (24 frames, 240x180) with a margin; the benchmark
+# (docs/benchmarks/extract.md) measures the issue's targets on longer, larger clips.
+E2E_LIMITS = {  # motion: (median rotation error deg, median centroid error % of radius)
+    "translation": (2.5, 9.0),
+    "inplane": (1.5, 15.0),
+    "outofplane": (1.5, 22.0),
+    "oscillation": (1.75, 11.0),
+}
+
+
+@pytest.mark.parametrize("motion", sorted(E2E_LIMITS))
+def test_synthetic_scenes(motion):
+    scene = make_scene(motion, seed=0, num_frames=24, size=(240, 180))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # nothing should fail on a clean scene
+        prior = extract_prior(scene.frames, scene.masks, scene.camera.K, scene.fps)
+    rot = rotation_errors(prior.poses[0], scene.poses[0])
+    cent = centroid_errors(prior, scene)
+    rot_limit, cent_limit = E2E_LIMITS[motion]
+    assert np.median(rot[1:]) < rot_limit, f"median rotation error {np.median(rot[1:]):.2f} deg"
+    assert np.median(cent[1:]) < cent_limit, f"median centroid error {np.median(cent[1:]):.1f} %"
+    np.testing.assert_allclose(prior.poses[0, 0], np.eye(4), atol=1e-12)
+
+
+@pytest.fixture(scope="module")
+def hinge():
+    scene = make_scene("hinge", seed=0, num_frames=32, size=(320, 240))  # the body stays, the lid opens ~77°
+    prior = extract_prior(scene.frames, scene.masks, scene.camera.K, scene.fps, options=ExtractOptions(parts="auto"))
+    return scene, prior
+
+
+def test_hinge_is_split_into_its_parts(hinge):
+    scene, prior = hinge
+    assert prior.num_parts == 2
+    labels, truth = prior.extras["labels"], scene.part_masks[0]
+    on = truth >= 0
+    assert max(np.mean(labels[on] == truth[on]), np.mean(labels[on] == 1 - truth[on])) >= 0.95
+    lid = int(np.argmax(rotation_angle_deg(prior.poses[:, -1, :3, :3])))
+    assert rotation_angle_deg(prior.poses[1 - lid, :, :3, :3]).max() < 1.0  # the body is static
+
+
+@pytest.mark.xfail(strict=True, reason="known: the lid's rotation is underestimated as it grows (issue 3 note)")
+def test_hinge_lid_rotation(hinge):
+    scene, prior = hinge
+    lid = int(np.argmax(rotation_angle_deg(prior.poses[:, -1, :3, :3])))
+    assert np.median(rotation_errors(prior.poses[lid], scene.poses[1])[1:]) < 1.0
+
+
+def test_one_part_when_asked():
+    scene = make_scene("hinge", seed=0, num_frames=8, size=(160, 120))
+    prior = extract_prior(scene.frames, scene.masks, scene.camera.K, scene.fps, options=ExtractOptions(parts=1))
+    assert prior.num_parts == 1 and set(np.unique(prior.extras["labels"])) == {-1, 0}
+
+
+def test_masks_are_found_when_not_given():
+    scene = make_scene("translation", seed=0, num_frames=16, size=(240, 180))
+    prior = extract_prior(scene.frames, None, scene.camera.K, scene.fps)
+    labels = prior.extras["labels"] >= 0
+    iou = (labels & scene.masks[0]).sum() / (labels | scene.masks[0]).sum()
+    assert iou > 0.8
+    assert np.median(rotation_errors(prior.poses[0], scene.poses[0])[1:]) < 2.5
+
+
+def test_camera_motion_is_removed():
+    scene = make_scene("outofplane", seed=0, num_frames=24, size=(240, 180), camera_motion="pan")
+    prior = extract_prior(scene.frames, scene.masks, scene.camera.K, scene.fps)
+    assert prior.metadata["camera_motion"] == "removed"
+    assert np.median(rotation_errors(prior.poses[0], scene.poses[0])[1:]) < 1.5
+
+
+def test_depth_maps_give_metric_poses():
+    scene = make_scene("outofplane", seed=0, num_frames=24, size=(240, 180))
+    prior = extract_prior(scene.frames, scene.masks, scene.camera.K, scene.fps, depths=scene.depths)
+    assert prior.metadata["method"].endswith("depth-umeyama")
+    assert np.median(rotation_errors(prior.poses[0], scene.poses[0])[1:]) < 1.0
+    # Metric: the translation is right without any scale factor.
+    err = np.linalg.norm(prior.poses[0, :, :3, 3] - scene.poses[0, :, :3, 3], axis=1)
+    assert np.median(err) < 0.05 * scene.radii()[0]

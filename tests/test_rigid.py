@@ -1,0 +1,180 @@
+"""Rigid poses from tracks (``marionette.source.rigid``): the bundle adjustment and ``fit_rigid``.
+
+Tracks here are exact projections of points on a turning ellipsoid (visible
+where its surface faces the camera), so the answer is known; noise and
+scrambled tracks are added on top.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from scipy.optimize import least_squares
+
+from marionette.geometry import axis_angle_to_matrix, make_transform, matrix_to_axis_angle, rotation_angle_deg
+from marionette.source import Tracks
+from marionette.source.rigid import RigidOptions, ShapePrior, _bundle_adjust, _project, fit_rigid
+
+K = np.array([[300.0, 0.0, 159.5], [0.0, 300.0, 119.5], [0.0, 0.0, 1.0]])
+W, H = 320, 240
+CENTRE = np.array([0.0, 0.0, 5.0])
+AXES = np.array([1.2, 0.9, 0.7])
+
+
+def turning_poses(num_frames: int, degrees: float, axis=(0.3, 1.0, 0.1), shift=(0.4, -0.2, 0.3)) -> np.ndarray:
+    """Poses (T, 4, 4): a turn by up to ``degrees`` about ``axis`` through CENTRE plus a drift ``shift``."""
+    s = np.linspace(0.0, 1.0, num_frames)
+    axis = np.asarray(axis) / np.linalg.norm(axis)
+    r = axis_angle_to_matrix(np.radians(degrees) * s[:, None] * axis)
+    return make_transform(r, CENTRE - r @ CENTRE + s[:, None] * np.asarray(shift))
+
+
+def ellipsoid_tracks(poses: np.ndarray, count: int = 3000, seed: int = 0) -> tuple[Tracks, np.ndarray]:
+    """Tracks of ``count`` surface points of the AXES ellipsoid at CENTRE moved by ``poses``; and the points (M, 3).
+
+    A point is visible where its outward normal faces the camera.
+    """
+    rng = np.random.default_rng(seed)
+    unit = rng.normal(size=(count, 3))
+    unit /= np.linalg.norm(unit, axis=1, keepdims=True)
+    points = unit * AXES + CENTRE
+    normals = unit / AXES
+    cam = np.einsum("tij,nj->tni", poses[:, :3, :3], points) + poses[:, None, :3, 3]
+    facing = np.einsum("tij,nj->tni", poses[:, :3, :3], normals)
+    visible = np.einsum("tni,tni->tn", facing, -cam) > 0.05 * np.linalg.norm(cam, axis=2)
+    uv = np.stack([_project(K, c) for c in cam])
+    visible &= (uv[..., 0] >= 0) & (uv[..., 0] < W) & (uv[..., 1] >= 0) & (uv[..., 1] < H)
+    visible &= visible.cumsum(axis=0) == np.arange(1, len(poses) + 1)[:, None]  # one visible run from frame 0
+    keep = visible.any(axis=0)
+    visible = visible[:, keep]
+    uv = np.where(visible[..., None], uv[:, keep], np.nan).astype(np.float32)
+    return Tracks(uv=uv, visible=visible, start=np.zeros(keep.sum(), dtype=np.int64)), points[keep]
+
+
+def ellipsoid_shape() -> ShapePrior:
+    """The exact frame-0 volume of the ellipsoid."""
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    d = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], axis=-1) / AXES
+    c = CENTRE / AXES
+    a, b, q = (d * d).sum(-1), -2 * (d * c).sum(-1), (c * c).sum() - 1
+    disc = b * b - 4 * a * q
+    root = np.sqrt(np.where(disc > 0, disc, np.nan))
+    return ShapePrior.from_depths((-b - root) / (2 * a), (-b + root) / (2 * a), K)
+
+
+def median_rotation_error(poses: np.ndarray, truth: np.ndarray) -> float:
+    return float(np.median(rotation_angle_deg(np.swapaxes(poses[1:, :3, :3], -1, -2) @ truth[1:, :3, :3])))
+
+
+def add_noise(tracks: Tracks, sigma: float, seed: int = 1) -> Tracks:
+    noise = np.random.default_rng(seed).normal(scale=sigma, size=tracks.uv.shape)
+    return dataclasses.replace(tracks, uv=(tracks.uv + noise).astype(np.float32))
+
+
+# --- the bundle adjustment -------------------------------------------------------------------------------------
+
+
+def small_problem(sigma: float):
+    """Six frames, 40 points seen in all of them, a perturbed start; returns BA arguments and the truth."""
+    rng = np.random.default_rng(3)
+    truth = turning_poses(6, 40.0)
+    unit = rng.normal(size=(40, 3))
+    points = unit / np.linalg.norm(unit, axis=1, keepdims=True) * AXES + CENTRE
+    uv = np.einsum("tij,nj->tni", truth[:, :3, :3], points) + truth[:, None, :3, 3]
+    uv = np.stack([_project(K, c) for c in uv]) + rng.normal(scale=sigma, size=(6, 40, 2))
+    start = truth.copy()
+    for t in range(1, 6):
+        start[t] = make_transform(axis_angle_to_matrix(rng.normal(scale=0.02, size=3)) @ truth[t, :3, :3],
+                                  truth[t, :3, 3] + rng.normal(scale=0.05, size=3))
+    lifted = points + rng.normal(scale=0.05, size=points.shape)
+    directions = lifted / np.linalg.norm(lifted, axis=1, keepdims=True)
+    return np.ones((6, 40), bool), uv, start, lifted, directions, np.arange(1, 6), truth, points
+
+
+def test_bundle_adjustment_reprojects_noise_free_observations_exactly():
+    observed, uv, start, lifted, directions, free, truth, _ = small_problem(0.0)
+    poses, points = _bundle_adjust(observed, uv, K, start, lifted, directions, free, 1.0, RigidOptions(), 200)
+    cam = np.einsum("tij,nj->tni", poses[:, :3, :3], points) + poses[:, None, :3, 3]
+    err = np.linalg.norm(np.stack([_project(K, c) for c in cam]) - uv, axis=2)
+    assert err.max() < 1e-4
+    # Exact reprojection leaves only the scale free (fixed by the depth prior): the rotations are the truth.
+    assert rotation_angle_deg(np.swapaxes(poses[:, :3, :3], -1, -2) @ truth[:, :3, :3]).max() < 1e-3
+
+
+def test_bundle_adjustment_matches_a_dense_reference():
+    """The same robust cost, minimised with a dense finite-difference Jacobian over plain (rotation vector, t)."""
+    observed, uv, start, lifted, directions, free, _, _ = small_problem(0.7)
+    options = RigidOptions()
+    poses, points = _bundle_adjust(observed, uv, K, start, lifted, directions, free, 1.0, options, 200)
+
+    def residuals(x):
+        rvec, trans = x[:15].reshape(5, 3), x[15:30].reshape(5, 3)
+        rot = np.concatenate([[np.eye(3)], axis_angle_to_matrix(rvec)])
+        t = np.concatenate([[np.zeros(3)], trans])
+        pts = x[30:].reshape(-1, 3)
+        cam = np.einsum("tij,nj->tni", rot, pts) + t[:, None]
+        err = np.stack([_project(K, c) for c in cam]) - uv
+        prior = options.depth_prior_weight * np.einsum("ni,ni->n", directions, pts - lifted)
+        return np.concatenate([err.ravel(), prior])
+
+    x0 = np.concatenate([matrix_to_axis_angle(start[1:, :3, :3]).ravel(), start[1:, :3, 3].ravel(), lifted.ravel()])
+    ref = least_squares(residuals, x0, loss="soft_l1", f_scale=options.refine_loss_scale, xtol=1e-12, ftol=1e-12,
+                        gtol=1e-12)
+    ref_rot = axis_angle_to_matrix(ref.x[:15].reshape(5, 3))
+    # Same optimum up to the scale, which only the weak depth prior fixes (a flat valley where the
+    # tolerances stop either solver): same rotations, same reprojections, same cost.
+    assert rotation_angle_deg(np.swapaxes(poses[1:, :3, :3], -1, -2) @ ref_rot).max() < 0.01
+    x = np.concatenate([matrix_to_axis_angle(poses[1:, :3, :3]).ravel(), poses[1:, :3, 3].ravel(), points.ravel()])
+    reprojection = residuals(x)[:-len(points)]
+    np.testing.assert_allclose(reprojection, ref.fun[:-len(points)], atol=0.01)
+    cost = np.sum(2 * (np.sqrt(1 + residuals(x) ** 2) - 1))  # soft_l1 with f_scale 1, as least_squares
+    assert cost == pytest.approx(2 * ref.cost, rel=1e-4)
+
+
+# --- fit_rigid ---------------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def scene():
+    truth = turning_poses(24, 60.0)
+    tracks, _ = ellipsoid_tracks(truth)
+    return truth, tracks
+
+
+def test_fit_rigid_meets_the_rotation_target(scene):
+    truth, tracks = scene
+    fit = fit_rigid(tracks, ShapePrior.inflate(np.isfinite(ellipsoid_shape().front), K))
+    assert not fit.failed_frames
+    assert median_rotation_error(fit.poses, truth) < 0.5
+    assert fit.reprojection_rms < 0.1
+
+
+def test_fit_rigid_with_one_pixel_of_noise(scene):
+    truth, tracks = scene
+    fit = fit_rigid(add_noise(tracks, 1.0), ShapePrior.inflate(np.isfinite(ellipsoid_shape().front), K))
+    assert median_rotation_error(fit.poses, truth) < 1.0
+    assert 0.8 < fit.reprojection_rms < 1.6  # the noise, neither fitted away nor inflated
+
+
+def test_ransac_rejects_scrambled_tracks(scene):
+    truth, tracks = scene
+    rng = np.random.default_rng(5)
+    bad = rng.random(tracks.num_tracks) < 0.2
+    uv = tracks.uv.copy()
+    # Scrambled: at each frame after 0, each bad track jumps to where some other bad track is.
+    ids = np.nonzero(bad)[0]
+    visible = tracks.visible.copy()
+    for t in range(1, len(uv)):
+        other = rng.permutation(ids)
+        uv[t, ids] = tracks.uv[t, other]
+        visible[t, ids] &= tracks.visible[t, other]
+    uv = np.where(visible[..., None], uv, np.nan)
+    scrambled = Tracks(uv=uv.astype(np.float32), visible=visible, start=tracks.start)
+    fit = fit_rigid(scrambled, ShapePrior.inflate(np.isfinite(ellipsoid_shape().front), K))
+    assert median_rotation_error(fit.poses, truth) < 0.5
+    # Inlier observations after frame 0: most of the good tracks', few of the scrambled ones'.
+    good_rate = fit.inliers[1:, ~bad].sum() / visible[1:, ~bad].sum()
+    bad_rate = fit.inliers[1:, bad].sum() / visible[1:, bad].sum()
+    assert good_rate > 0.9 and bad_rate < 0.3
