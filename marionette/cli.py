@@ -96,7 +96,7 @@ def demo(output: Annotated[Path, typer.Option("--output", "-o", help="Output fol
 Masks = Annotated[Optional[Path], typer.Option(help="Folder of per-frame mask images (default: found automatically).")]
 Depth = Annotated[Optional[Path], typer.Option(help="Folder of per-frame depth maps (16-bit PNG in mm, or .npy).")]
 Focal = Annotated[Optional[float], typer.Option(help="Focal length in pixels (default: 60° horizontal FOV).")]
-Parts = Annotated[str, typer.Option(help="Number of rigid parts, or 'auto'.")]
+Parts = Annotated[str, typer.Option(help="Number of moving rigid parts, or 'auto' to choose; above 1, a static group is added when found.")]
 Start = Annotated[int, typer.Option(help="First source frame to use.")]
 End = Annotated[Optional[int], typer.Option(help="Source frame to stop before (default: the end).")]
 Stride = Annotated[int, typer.Option(help="Use every N-th source frame.")]
@@ -125,7 +125,7 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
 
 @app.command()
 def extract(source: Annotated[Path, typer.Argument(help="Video file or folder of frames.")],
-            output: Output, masks: Masks = None, depth: Depth = None, focal: Focal = None, parts: Parts = "auto",
+            output: Output, masks: Masks = None, depth: Depth = None, focal: Focal = None, parts: Parts = "1",
             start: Start = 0, end: End = None, stride: Stride = 1, max_side: MaxSide = pipeline.DEFAULT_MAX_SIDE,
             smooth: Smooth = 1.0, plot: Plot = None, quiet: Quiet = False) -> None:
     """Extract the SpaT prior (per-part rigid motion) from a source video."""
@@ -167,7 +167,7 @@ def transfer(prior: Annotated[Path, typer.Argument(help="SpaT prior .npz.")],
 @app.command()
 def run(source: Annotated[Path, typer.Argument(help="Video file or folder of frames.")],
         target: Annotated[Path, typer.Argument(help="Target image (RGB/RGBA) or 3DGS .ply.")],
-        output: Output, masks: Masks = None, depth: Depth = None, focal: Focal = None, parts: Parts = "auto",
+        output: Output, masks: Masks = None, depth: Depth = None, focal: Focal = None, parts: Parts = "1",
         start: Start = 0, end: End = None, stride: Stride = 1, max_side: MaxSide = pipeline.DEFAULT_MAX_SIDE,
         smooth: Smooth = 1.0, plot: Plot = None,
         frames: Frames = None, speed: Speed = 1.0, fps: Fps = None, background: Background = "1,1,1",

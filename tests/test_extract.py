@@ -188,3 +188,18 @@ def test_depth_maps_give_metric_poses():
     # Metric: the translation is right without any scale factor.
     err = np.linalg.norm(prior.poses[0, :, :3, 3] - scene.poses[0, :, :3, 3], axis=1)
     assert np.median(err) < 0.05 * scene.radii()[0]
+
+
+def test_late_tracks_take_the_label_of_their_neighbours():
+    from marionette.source.extract import _propagate_labels
+    from marionette.source.tracks import Tracks
+
+    # Frame 0: part 0 on the left, part 1 on the right; frame 1: new tracks appear beside each, and one far away.
+    uv = np.full((2, 7, 2), np.nan, np.float32)
+    uv[:, 0], uv[:, 1] = (10, 10), (12, 10)
+    uv[:, 2], uv[:, 3] = (50, 10), (52, 10)
+    uv[1, 4], uv[1, 5], uv[1, 6] = (11, 13), (51, 12), (200, 200)
+    visible = np.isfinite(uv[..., 0])
+    tracks = Tracks(uv, visible, np.array([0, 0, 0, 0, 1, 1, 1]))
+    labels = _propagate_labels(tracks, np.array([0, 0, 1, 1, -2, -2, -2]), -2, radius=10.0)
+    assert labels.tolist() == [0, 0, 1, 1, 0, 1, -2]

@@ -47,6 +47,10 @@ from .tracks import Tracks, _check_video, track
 
 __all__ = ["ExtractOptions", "extract_prior"]
 
+#: Camera motion is removed only when, in 90 % of the frames, at least this
+#: share of the background tracks agrees with the fitted camera rotation.
+_CAMERA_AGREEMENT = 0.3
+
 
 @dataclass(frozen=True)
 class ExtractOptions:
@@ -236,14 +240,21 @@ def extract_prior(frames: np.ndarray, masks: np.ndarray | None, camera_K: np.nda
         tracks = track(frames, masks, spacing=options.spacing, window=options.window, levels=options.levels,
                        fb_threshold=options.fb_threshold, reseed_every=options.reseed_every,
                        min_eigen=options.min_eigen, progress=progress)
-    camera = None
+    camera, camera_note = None, "not estimated"
     if options.camera_motion:
         with stages("camera", "camera motion", 1) as progress:
             camera = estimate_camera_motion(frames, masks, k)
             progress(1, 1)
+        agreement = float(np.percentile(camera.inlier_ratio[1:], 10))
+        camera_note = "static" if camera.static else "removed"
+        if not camera.static and agreement < _CAMERA_AGREEMENT:
+            warnings.warn(f"the camera moves, but only {agreement:.0%} of the background agrees with a camera "
+                          "rotation in some frames (parallax of a near background?): poses are left relative to "
+                          "the camera", stacklevel=2)
+            camera, camera_note = None, f"unreliable (background agreement {agreement:.0%}), kept"
     metadata = {"method": "lk-tracks+" + ("depth-umeyama" if depths is not None else "inflated-shape+pnp+ba"),
                 "options": dataclasses.asdict(options), "num_tracks": tracks.num_tracks,
-                "camera_motion": "not estimated" if camera is None else ("static" if camera.static else "removed"),
+                "camera_motion": camera_note,
                 "timings": stages.timings}
     common = dict(fps=fps, image_size=(w, h), intrinsics=k)
     extras = {"tracks_uv": tracks.uv, "tracks_visible": tracks.visible}

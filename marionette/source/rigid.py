@@ -5,18 +5,14 @@ depth and bundle-adjusted cameras (MoSca), then fits per-step rigid
 transforms with Umeyama's method (Eq. 3-4). Without a depth network we use
 the rigidity itself, the classical structure-from-motion route:
 
-1. **Shape prior.** The monocular scale is unknowable, so we fix it by the
-   object's size: the object's frame-0 shape is a rounded volume inflated
-   from its mask (:meth:`ShapePrior.inflate`), placed at the depth where its
-   RMS radius is exactly 1 unit. (The alternative, a unit distance to the
-   camera, would make translations depend on how far away the object was
-   filmed; transfer rescales by target size / source size, so size is the
-   unit it needs.) The bundle adjustment keeps this gauge through the depth
-   prior on the points, to within a few percent. The volume is as thick as
-   the mask is wide at its widest inscribed disc (a disc mask gives a
-   sphere): for a rigid object seen once, "about as deep as it is wide" is
-   the least committal guess, and a rounded front surface, unlike a flat
-   plane, keeps PnP well posed under out-of-plane rotation.
+1. **Shape prior.** The monocular scale is unknowable, so we fix it: the
+   object's frame-0 shape is a rounded volume inflated from its mask
+   (:meth:`ShapePrior.inflate`), placed at the depth where its RMS radius is
+   exactly 1 unit. The volume is as thick as the mask is wide at its widest
+   inscribed disc (a disc mask gives a sphere): for a rigid object seen once,
+   "about as deep as it is wide" is the least committal guess, and a rounded
+   front surface, unlike a flat plane, keeps PnP well posed under
+   out-of-plane rotation.
 2. **Sequential PnP.** Tracks alive at frame 0 are lifted onto the volume's
    front surface. At each frame t the pose follows from the lifted tracks
    visible at t by RANSAC PnP (``cv2.solvePnPRansac``, started from the pose
@@ -27,27 +23,18 @@ the rigidity itself, the classical structure-from-motion route:
    frame-0 surface has turned away.
 3. **Joint refinement.** A sparse bundle adjustment (Triggs et al., "Bundle
    adjustment — a modern synthesis", 1999) over all poses and a subset of the
-   3D points: ``scipy.optimize.least_squares`` (trust region, LSMR steps)
-   with an analytic sparse Jacobian, a robust ``soft_l1`` loss in pixels,
-   pose steps taken about the body's centre (a turn about the camera
-   centre would also shift the body, a badly conditioned coupling for the
-   iterative solver), and a weak prior keeping each point's depth near its
-   lifted value. Where the object turns out of plane, parallax corrects the
-   guessed shape and the poses with it; where it does not (in-plane
-   rotation) the shape stays the prior's and is irrelevant to the motion
-   anyway. It runs every ``refine_every`` frames on the frames so far (so
-   that the next PnP uses corrected points) and over the whole clip at the
-   end, where tracks are then cut where they start to disagree with the fit
-   (drift) and it runs again, for up to ``prune_rounds`` rounds.
+   3D points, with a Huber loss and a weak prior keeping each point's depth
+   near its lifted value (this also fixes the scale gauge). Where the object
+   turns out of plane, parallax corrects the guessed shape and the poses with
+   it; where it does not (translation, in-plane rotation) the shape stays
+   the prior's and is irrelevant to the motion anyway. It runs every
+   ``refine_every`` frames on the frames so far (so that the next PnP uses
+   corrected points) and over the whole clip at the end, where tracks are
+   then cut where they start to disagree with the fit (drift) and it runs
+   once more.
 4. **Centre.** :func:`carved_centroid` carves the prior volume with the
    silhouettes of all frames under the fitted poses; its centroid is the
-   body's centre (what the SpaT prior rotates parts about). This centre is
-   the accuracy bottleneck: the hidden back of the object is a guess. On
-   the synthetic boxes it lies 4-10 % of the radius from the true centre
-   (mostly sideways: perspective enlarges the near half of the silhouette),
-   where the poses alone would give 0.2-2 %. The full visual hull of all
-   frames is worse (up to 50 %): with a perspective camera turning 90° about
-   the object, the region behind it that no view sees stays in the hull.
+   body's centre (what the SpaT prior rotates parts about).
 
 Frames where the pose cannot be estimated (fewer than ``min_points`` tracks
 or inliers) are expected outcomes, not errors: they are interpolated between
@@ -68,8 +55,6 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-from scipy.optimize import least_squares
-from scipy.sparse import csr_matrix
 from scipy.spatial import cKDTree
 
 from ..geometry import axis_angle_to_matrix, invert_transform, make_transform, se3_interpolate, transform_points
@@ -306,19 +291,12 @@ class RigidOptions:
         a frame has fewer than 30), enter the refinement; a few hundred
         constrain 6-DoF poses well and keep it to about a second.
     refine_loss_scale : float
-        Scale in pixels of the refinement's robust loss (``soft_l1`` per
-        pixel coordinate): residuals well above it count about linearly.
+        Huber loss scale in pixels: residuals above it count linearly.
     prune_threshold : float
-        After the final refinement, each track is cut from the first frame
-        where its reprojection error exceeds 4 σ of the residuals (3.4 times
-        their median), or this many pixels if that is larger (LK tracks drift
-        rather than jump, so what follows is suspect too), and the refinement
-        runs again. Clean synthetic tracks have σ ≈ 0.04 px yet a tenth of
-        them drift by 0.3-1 px (near the silhouette and the box's edges),
-        enough to turn a translating box by a degree: hence the low floor.
-    prune_rounds : int
-        At most this many cut-and-refine rounds (each cut can reveal more
-        drift once the worst tracks no longer pull the fit); 0 disables pruning.
+        After a first refinement, each track is cut from the first frame where
+        its reprojection error exceeds this many pixels, or 4 σ of the
+        residuals if that is larger (LK tracks drift rather than jump, so what
+        follows is suspect too), and the refinement runs again. 0 disables it.
     depth_prior_weight : float
         A point whose depth moves by one radius away from its lifted value
         costs as much as this many pixels of reprojection error in one frame.
@@ -335,8 +313,7 @@ class RigidOptions:
     refine_every: int = 8
     refine_tracks: int = 400
     refine_loss_scale: float = 1.0
-    prune_threshold: float = 0.1
-    prune_rounds: int = 3
+    prune_threshold: float = 1.0
     depth_prior_weight: float = 0.1
     seed: int = 0
 
@@ -432,18 +409,6 @@ def _skew(v: np.ndarray) -> np.ndarray:
     return out - np.swapaxes(out, -1, -2)
 
 
-def _left_jacobian(omega: np.ndarray) -> np.ndarray:
-    """Left Jacobians (F, 3, 3) of SO(3) at rotation vectors (F, 3): ``exp(ω + δ) ≈ exp(J δ) exp(ω)``."""
-    theta = np.linalg.norm(omega, axis=1)[:, None, None]
-    small = theta < 1e-4
-    t = np.where(small, 1.0, theta)
-    # Series below 1e-4 rad, where the closed forms lose their digits.
-    a = np.where(small, 0.5 - theta**2 / 24, (1 - np.cos(t)) / t**2)
-    b = np.where(small, 1 / 6 - theta**2 / 120, (t - np.sin(t)) / t**3)
-    w = _skew(omega)
-    return np.eye(3) + a * w + b * w @ w
-
-
 def _huber_weights(norms: np.ndarray, scale: float) -> tuple[np.ndarray, float]:
     """IRLS weights (O,) of the Huber loss on residual norms (O,), and the total Huber cost."""
     big = norms > scale
@@ -453,85 +418,106 @@ def _huber_weights(norms: np.ndarray, scale: float) -> tuple[np.ndarray, float]:
 
 def _bundle_adjust(observed: np.ndarray, uv: np.ndarray, k: np.ndarray, poses: np.ndarray, points: np.ndarray,
                    directions: np.ndarray, free: np.ndarray, radius: float, options: RigidOptions,
-                   max_nfev: int = 30) -> tuple[np.ndarray, np.ndarray]:
+                   iterations: int = 30) -> tuple[np.ndarray, np.ndarray]:
     """Jointly refine the poses of frames ``free`` (F,) and N points (N, 3) observed at ``uv`` (T, N, 2).
 
-    Minimises, with ``scipy.optimize.least_squares`` (trust-region reflective
-    with LSMR steps), the ``soft_l1`` cost (scale ``refine_loss_scale``
-    pixels per coordinate) of the reprojection errors of the observations
-    marked in ``observed`` (T, N) bool at frame 0 and the free frames, plus
-    ``depth_prior_weight * n·(X - X_lift) / radius`` per point, with ``n``
-    (N, 3) the point's unit lifting ray in body coordinates: this fixes the
-    scale gauge and the depths the tracks cannot decide. Frame f's pose steps
-    are a turn ``ω`` about the body's centre ``c_f`` there and a shift ``δ``:
-    ``X ↦ exp(ω) (R_init X + t_init - c_f) + c_f + δ``. The Jacobian is
-    analytic and sparse (each residual depends on one pose and one point);
-    finite differences on the same pattern (``jac_sparsity``) converge alike
-    but take twice as long.
+    Minimises the Huber cost of the reprojection errors (pixels) of the
+    observations marked in ``observed`` (T, N) bool at frame 0 and the free
+    frames, plus
+    ``(depth_prior_weight * n·(X - X_lift) / radius)²`` per point, with ``n``
+    (N, 3) the point's unit lifting ray in body coordinates. Levenberg–
+    Marquardt with iteratively reweighted Gauss–Newton steps, solved by the
+    Schur complement on the poses (Triggs et al. 1999, Sec. 6.1): the point
+    blocks (3x3 each) are eliminated and the reduced (6F, 6F) pose system is
+    solved densely. Poses are updated as ``R ← exp(ω) R, t ← t + δt``.
 
     Returns refined poses (T, 4, 4) (other frames unchanged) and points (N, 3).
     """
+    num_frames = len(poses)
     f_count, n_count = len(free), len(points)
-    slot = np.full(len(poses), -1)
+    slot = np.full(num_frames, -1)
     slot[free] = np.arange(f_count)
     pose_known = slot >= 0
     pose_known[0] = True
     obs_t, obs_i = np.nonzero(observed & pose_known[:, None])  # (O,) frame and point
     obs_uv = uv[obs_t, obs_i].astype(np.float64)  # (O, 2)
-    prior_w = options.depth_prior_weight / radius
-    rot0, trans0 = poses[:, :3, :3], poses[:, :3, 3]
-    # Steps turn each frame about the body's centre there: about the camera centre, a turn would move
-    # the body sideways and couple rotation and translation (a poorly conditioned problem for LSMR).
-    centre = np.einsum("fij,j->fi", rot0[free], points.mean(axis=0)) + trans0[free]  # (F, 3)
-
-    def unpack(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        step = x[:6 * f_count].reshape(f_count, 6)
-        turn = axis_angle_to_matrix(step[:, :3])
-        rot, trans = rot0.copy(), trans0.copy()
-        rot[free] = turn @ rot0[free]
-        trans[free] = np.einsum("fij,fj->fi", turn, trans0[free] - centre) + centre + step[:, 3:]
-        return rot, trans, x[6 * f_count:].reshape(n_count, 3)
-
-    def residuals(x: np.ndarray) -> np.ndarray:
-        rot, trans, pts = unpack(x)
-        cam = np.einsum("oij,oj->oi", rot[obs_t], pts[obs_i]) + trans[obs_t]
-        cam[:, 2] = np.maximum(cam[:, 2], 1e-6 * radius)  # keep trial steps finite
-        prior = prior_w * np.einsum("ni,ni->n", directions, pts - points)
-        return np.concatenate([(_project(k, cam) - obs_uv).ravel(), prior])
-
-    # The Jacobian is sparse: reprojection rows 2o, 2o+1 see their frame's 6 pose and their point's 3
-    # coordinates, prior row n its point's 3 coordinates. Entries are listed in that (row, column) order.
-    moving = slot[obs_t] >= 0
-    o_rows = 2 * np.arange(len(obs_t))[:, None] + np.array([0, 1])  # (O, 2)
-    pose_cols = 6 * slot[obs_t][:, None] + np.arange(6)  # (O, 6)
-    point_cols = 6 * f_count + 3 * obs_i[:, None] + np.arange(3)  # (O, 3)
-    rows = np.concatenate([np.repeat(o_rows[moving], 6, axis=1).ravel(), np.repeat(o_rows, 3, axis=1).ravel(),
-                           np.repeat(2 * len(obs_t) + np.arange(n_count), 3)])
-    cols = np.concatenate([np.tile(pose_cols[moving], 2).ravel(), np.tile(point_cols, 2).ravel(),
-                           (6 * f_count + 3 * np.arange(n_count)[:, None] + np.arange(3)).ravel()])
-    shape = (2 * len(obs_t) + n_count, 6 * f_count + 3 * n_count)
+    obs_slot = slot[obs_t]
+    moving = obs_slot >= 0  # observations whose pose is a variable
     fxy = np.array([k[0, 0], k[1, 1]])
+    x_lift = points.copy()
+    prior_w = options.depth_prior_weight / radius
 
-    def jacobian(x: np.ndarray) -> csr_matrix:
-        rot, trans, pts = unpack(x)
-        cam = np.einsum("oij,oj->oi", rot[obs_t], pts[obs_i]) + trans[obs_t]
-        z = np.maximum(cam[:, 2], 1e-6 * radius)
+    def evaluate(rot: np.ndarray, trans: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, ...]:
+        rx = np.einsum("oij,oj->oi", rot[obs_t], pts[obs_i])  # (O, 3)
+        cam = rx + trans[obs_t]
+        err = _project(k, cam) - obs_uv  # (O, 2)
+        prior = prior_w * np.einsum("ni,ni->n", directions, pts - x_lift)  # (N,)
+        weights, cost = _huber_weights(np.linalg.norm(err, axis=1), options.refine_loss_scale)
+        return rx, cam, err, prior, weights, cost + float(prior @ prior)
+
+    rot, trans, pts = poses[:, :3, :3].copy(), poses[:, :3, 3].copy(), points.copy()
+    rx, cam, err, prior, weights, cost = evaluate(rot, trans, pts)
+    damping = 1e-3
+    for _ in range(iterations):
+        z = cam[:, 2]
         j_proj = np.zeros((len(z), 2, 3))  # d pixel / d camera point
         j_proj[:, 0, 0], j_proj[:, 1, 1] = fxy[0] / z, fxy[1] / z
         j_proj[:, :, 2] = -fxy * cam[:, :2] / z[:, None] ** 2
-        # d exp(ω) q / dω = -[exp(ω) q]x J_l(ω), J_l the left Jacobian of SO(3), q the point about the centre.
-        step = x[:6 * f_count].reshape(f_count, 6)
-        arm = cam[moving] - (centre + step[:, 3:])[slot[obs_t[moving]]]
-        j_rot = -j_proj[moving] @ _skew(arm) @ _left_jacobian(step[:, :3])[slot[obs_t[moving]]]  # (O', 2, 3)
-        values = np.concatenate([np.concatenate([j_rot, j_proj[moving]], axis=2).ravel(),
-                                 (j_proj @ rot[obs_t]).ravel(), (prior_w * directions).ravel()])
-        return csr_matrix((values, (rows, cols)), shape=shape)
+        j_pose = np.concatenate([-j_proj @ _skew(rx), j_proj], axis=2)  # (O, 2, 6)
+        j_point = j_proj @ rot[obs_t]  # (O, 2, 3)
+        wj_pose, wj_point = weights[:, None, None] * j_pose, weights[:, None, None] * j_point
 
-    x0 = np.concatenate([np.zeros(6 * f_count), points.ravel()])
-    result = least_squares(residuals, x0, jac=jacobian, loss="soft_l1", f_scale=options.refine_loss_scale,
-                           x_scale="jac", tr_solver="lsmr", max_nfev=max_nfev, xtol=1e-10, ftol=1e-8)
-    rot, trans, pts = unpack(result.x)
-    return make_transform(rot, trans), pts.copy()
+        # Normal equations, blockwise: A (F, 6, 6) poses, C (N, 3, 3) points, B (O, 6, 3) couplings.
+        a = np.zeros((f_count, 6, 6))
+        g = np.zeros((f_count, 6))
+        np.add.at(a, obs_slot[moving], np.einsum("oki,okj->oij", wj_pose[moving], j_pose[moving]))
+        np.add.at(g, obs_slot[moving], np.einsum("oki,ok->oi", wj_pose[moving], err[moving]))
+        c = np.zeros((n_count, 3, 3))
+        h = np.zeros((n_count, 3))
+        np.add.at(c, obs_i, np.einsum("oki,okj->oij", wj_point, j_point))
+        np.add.at(h, obs_i, np.einsum("oki,ok->oi", wj_point, err))
+        c += prior_w**2 * directions[:, :, None] * directions[:, None, :]
+        h += prior_w * prior[:, None] * directions
+        b = np.einsum("oki,okj->oij", wj_pose[moving], j_point[moving])  # (O', 6, 3)
+
+        # Couplings in a dense (N, F·6, 3) layout: the Schur complement is then one matrix product.
+        b_dense = np.zeros((n_count, f_count, 6, 3))
+        b_dense[obs_i[moving], obs_slot[moving]] = b
+        b_dense = b_dense.reshape(n_count, 6 * f_count, 3)
+        diag = (6 * np.arange(f_count)[:, None, None] + np.arange(6)[None, :, None],
+                6 * np.arange(f_count)[:, None, None] + np.arange(6)[None, None, :])
+        while damping <= 1e8:
+            a_d = a + damping * (np.einsum("fii->fi", a)[:, :, None] * np.eye(6) + 1e-9 * np.eye(6))
+            c_d = c + damping * (np.einsum("nii->ni", c)[:, :, None] * np.eye(3) + 1e-9 * np.eye(3))
+            c_inv = np.linalg.inv(c_d)
+            e = b_dense @ c_inv  # (N, 6F, 3) = B C⁻¹ per point
+            # Reduced system S = A - Σ_n E_n B_nᵀ, r = g - Σ_n E_n h_n.
+            s_mat = -(e.transpose(1, 0, 2).reshape(6 * f_count, -1)
+                      @ b_dense.transpose(0, 2, 1).reshape(-1, 6 * f_count))
+            s_mat[diag] += a_d
+            r_vec = g.ravel() - np.einsum("nfk,nk->f", e, h)
+            try:
+                d_pose = -np.linalg.solve(s_mat, r_vec).reshape(f_count, 6)
+            except np.linalg.LinAlgError:
+                damping *= 10
+                continue
+            d_point = -np.einsum("nij,nj->ni", c_inv, h + np.einsum("nfk,f->nk", b_dense, d_pose.ravel()))
+            new_rot, new_trans = rot.copy(), trans.copy()
+            new_rot[free] = axis_angle_to_matrix(d_pose[:, :3]) @ rot[free]
+            new_trans[free] = trans[free] + d_pose[:, 3:]
+            trial = evaluate(new_rot, new_trans, pts + d_point)
+            if np.all(trial[1][:, 2] > 0) and trial[-1] <= cost:
+                break
+            damping *= 10
+        else:
+            break  # no damped step lowers the cost: converged
+        improvement = (cost - trial[-1]) / max(cost, 1e-300)
+        rot, trans, pts = new_rot, new_trans, pts + d_point
+        rx, cam, err, prior, weights, cost = trial
+        damping = max(damping / 10, 1e-7)
+        if improvement < 1e-6:
+            break
+    return make_transform(rot, trans), pts
 
 
 def _choose_tracks(visible: np.ndarray, count: int, seed: int, ids: np.ndarray, per_frame: int = 30) -> np.ndarray:
@@ -644,20 +630,17 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
             return
         chosen = _choose_tracks(seen[:, lifted], options.refine_tracks, options.seed, lifted)
         observed = seen[:, chosen]
-        max_nfev = 30 if final else 10
+        iterations = 30 if final else 10
         poses[:], points[chosen] = _bundle_adjust(observed, uv[:, chosen], k, poses, points[chosen],
-                                                  directions[chosen], free, shape.radius, options, max_nfev)
-        for _ in range(options.prune_rounds if final else 0):
+                                                  directions[chosen], free, shape.radius, options, iterations)
+        if final and options.prune_threshold > 0:
             # Tracks drift rather than jump: drop each one from its first frame past the gate on.
             err = _reprojection_errors(k, poses, points[chosen], uv[:, chosen])
             # 3.4 median residuals is 4 σ for Gaussian pixel noise (Rayleigh norms).
             gate = max(options.prune_threshold, 3.4 * float(np.median(err[observed])))
-            cut = observed & (np.cumsum(observed & (err > gate), axis=0) > 0)
-            if not cut.any():
-                break
-            observed &= ~cut
+            observed &= np.cumsum(observed & (err > gate), axis=0) == 0
             poses[:], points[chosen] = _bundle_adjust(observed, uv[:, chosen], k, poses, points[chosen],
-                                                      directions[chosen], free, shape.radius, options, max_nfev)
+                                                      directions[chosen], free, shape.radius, options)
         rest = np.setdiff1d(lifted, chosen)
         points[rest] = _refine_points(seen[:, rest], uv[:, rest], k, poses, points[rest], options.refine_loss_scale)
 
