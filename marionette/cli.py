@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import sys
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -22,7 +23,9 @@ from .io.atomic import check_output_dir, check_output_path
 from .plot import plot_prior
 from .progress import Reporter
 from .render import render
+from .render.camera_path import CAMERA_MOVES, camera_path, load_camera_path
 from .source import ExtractOptions
+from .transfer.controls import LOOPS
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   help="Transfer the rigid motion of a video onto a single image, via 3D Gaussians.")
@@ -137,31 +140,90 @@ def extract(source: Annotated[Path, typer.Argument(help="Video file or folder of
         plot_prior(prior, plot, title=source.name)
 
 
-def _transfer_and_render(prior, target: Path, output: Path, frames, speed, fps, background, size, reporter) -> None:
-    lifted = pipeline.load_target(target, size=size, prior=prior)
-    trajectory = pipeline.transfer(prior, lifted, frames=frames, speed=speed)
-    camera = pipeline.fit_view(lifted.camera, trajectory)
-    pipeline.render_video(output, lifted.gaussians, trajectory, camera, fps=fps or prior.fps,
-                          background=background, reporter=reporter)
-
-
 Frames = Annotated[Optional[int], typer.Option(help="Number of output frames (default: the source's length).")]
 Speed = Annotated[float, typer.Option(help="Playback speed relative to the source.")]
+Loop = Annotated[str, typer.Option(help="Past the source's end: hold, repeat or pingpong.")]
+Reverse = Annotated[bool, typer.Option("--reverse", help="Play the source's motion backwards.")]
+RotationScale = Annotated[float, typer.Option(help="Multiply every rotation angle.")]
+TranslationScale = Annotated[float, typer.Option(help="Multiply every displacement of the parts' centres.")]
 Fps = Annotated[Optional[float], typer.Option(help="Output frame rate (default: the source's).")]
 Background = Annotated[str, typer.Option(help="Background colour R,G,B (0-1 or 0-255).")]
 Size = Annotated[Optional[str], typer.Option(help="Output size WIDTHxHEIGHT for a .ply target (default 512x512); an image target is resized to it.")]
+CameraMove = Annotated[str, typer.Option("--camera", help="Camera move: static, orbit or dolly.")]
+CameraAmount = Annotated[Optional[float], typer.Option(help="Orbit degrees (default 30) or dolly share of the distance (default 0.3).")]
+CameraPath = Annotated[Optional[Path], typer.Option(help="JSON list of CAMERA.json objects, one per frame (or one).")]
+PlyDir = Annotated[Optional[Path], typer.Option(help="Also write each frame's Gaussians as DIR/00000.ply ….")]
+
+
+@dataclass(frozen=True)
+class _Playback:
+    """Checked options of ``transfer`` and ``run``."""
+
+    frames: int | None
+    speed: float
+    loop: str
+    reverse: bool
+    rotation_scale: float
+    translation_scale: float
+    fps: float | None
+    background: tuple[float, float, float]
+    size: tuple[int, int] | None
+    camera: str
+    camera_amount: float | None
+    camera_path: Path | None
+    ply_dir: Path | None
+
+
+def _playback(output: Path, frames, speed, loop, reverse, rotation_scale, translation_scale, fps, background, size,
+              camera, camera_amount, camera_path, ply_dir) -> _Playback:
+    """Check every playback option (before any work starts) and the output paths."""
+    _transfer_checks(frames, speed, fps)
+    if loop not in LOOPS:
+        raise InputError(f"--loop must be one of {', '.join(LOOPS)}, got {loop!r}")
+    for name, value in (("--rotation-scale", rotation_scale), ("--translation-scale", translation_scale)):
+        if not (np.isfinite(value) and abs(value) <= 100):
+            raise InputError(f"{name} must be a number within -100..100, got {value}")
+    if camera not in CAMERA_MOVES:
+        raise InputError(f"--camera must be one of {', '.join(CAMERA_MOVES)}, got {camera!r}")
+    if camera_path is not None and camera != "static":
+        raise InputError("--camera-path and --camera orbit/dolly exclude each other")
+    if camera_path is not None and not camera_path.is_file():
+        raise InputError(f"camera path {camera_path} does not exist")
+    _video_output(output)
+    if ply_dir is not None:
+        check_output_dir(ply_dir)
+    return _Playback(frames, speed, loop, reverse, rotation_scale, translation_scale, fps, _parse_rgb(background),
+                     _parse_size(size), camera, camera_amount, camera_path, ply_dir)
+
+
+def _transfer_and_render(prior, target: Path, output: Path, play: _Playback, reporter: Reporter) -> None:
+    lifted = pipeline.load_target(target, size=play.size, prior=prior)
+    trajectory = pipeline.transfer(prior, lifted, frames=play.frames, speed=play.speed, loop=play.loop,
+                                   reverse=play.reverse, rotation_scale=play.rotation_scale,
+                                   translation_scale=play.translation_scale)
+    if play.camera_path is not None:
+        cameras = load_camera_path(play.camera_path, trajectory.num_frames)
+    else:
+        cameras = camera_path(pipeline.fit_view(lifted.camera, trajectory), lifted.gaussians.means.mean(axis=0),
+                              trajectory.num_frames, play.camera, play.camera_amount)
+    pipeline.render_video(output, lifted.gaussians, trajectory, cameras, fps=play.fps or prior.fps,
+                          background=play.background, reporter=reporter)
+    if play.ply_dir is not None:
+        pipeline.write_ply_frames(play.ply_dir, lifted.gaussians, trajectory)
 
 
 @app.command()
 def transfer(prior: Annotated[Path, typer.Argument(help="SpaT prior .npz.")],
              target: Annotated[Path, typer.Argument(help="Target image (RGB/RGBA) or 3DGS .ply.")],
-             output: Output, frames: Frames = None, speed: Speed = 1.0, fps: Fps = None,
-             background: Background = "1,1,1", size: Size = None, quiet: Quiet = False) -> None:
+             output: Output, frames: Frames = None, speed: Speed = 1.0, loop: Loop = "hold", reverse: Reverse = False,
+             rotation_scale: RotationScale = 1.0, translation_scale: TranslationScale = 1.0, fps: Fps = None,
+             background: Background = "1,1,1", size: Size = None, camera: CameraMove = "static",
+             camera_amount: CameraAmount = None, camera_path: CameraPath = None, ply_dir: PlyDir = None,
+             quiet: Quiet = False) -> None:
     """Apply a SpaT prior to a target image or .ply and render the video."""
-    _transfer_checks(frames, speed, fps)
-    bg, sz = _parse_rgb(background), _parse_size(size)
-    _video_output(output)
-    _transfer_and_render(read_prior(prior), target, output, frames, speed, fps, bg, sz, Reporter(quiet))
+    play = _playback(output, frames, speed, loop, reverse, rotation_scale, translation_scale, fps, background, size,
+                     camera, camera_amount, camera_path, ply_dir)
+    _transfer_and_render(read_prior(prior), target, output, play, Reporter(quiet))
 
 
 @app.command()
@@ -170,17 +232,19 @@ def run(source: Annotated[Path, typer.Argument(help="Video file or folder of fra
         output: Output, masks: Masks = None, depth: Depth = None, focal: Focal = None, parts: Parts = "1",
         start: Start = 0, end: End = None, stride: Stride = 1, max_side: MaxSide = pipeline.DEFAULT_MAX_SIDE,
         smooth: Smooth = 1.0, plot: Plot = None,
-        frames: Frames = None, speed: Speed = 1.0, fps: Fps = None, background: Background = "1,1,1",
-        size: Size = None, quiet: Quiet = False) -> None:
+        frames: Frames = None, speed: Speed = 1.0, loop: Loop = "hold", reverse: Reverse = False,
+        rotation_scale: RotationScale = 1.0, translation_scale: TranslationScale = 1.0, fps: Fps = None,
+        background: Background = "1,1,1", size: Size = None, camera: CameraMove = "static",
+        camera_amount: CameraAmount = None, camera_path: CameraPath = None, ply_dir: PlyDir = None,
+        quiet: Quiet = False) -> None:
     """Extract the source's motion and transfer it onto the target in one go."""
-    _transfer_checks(frames, speed, fps)
-    bg, sz = _parse_rgb(background), _parse_size(size)
-    _video_output(output)
+    play = _playback(output, frames, speed, loop, reverse, rotation_scale, translation_scale, fps, background, size,
+                     camera, camera_amount, camera_path, ply_dir)
     if not Path(target).exists():
         raise InputError(f"target {target} does not exist")
     reporter = Reporter(quiet)
     prior = _extract(source, masks, depth, focal, parts, start, end, stride, max_side, smooth, plot, reporter)
-    _transfer_and_render(prior, target, output, frames, speed, fps, bg, sz, reporter)
+    _transfer_and_render(prior, target, output, play, reporter)
     if plot is not None:
         plot_prior(prior, plot, title=Path(source).name)
 

@@ -7,7 +7,7 @@ trajectory), ``render_video`` (trajectory → video file).
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import replace
 from pathlib import Path
 
@@ -17,7 +17,8 @@ import numpy as np
 from .camera import Camera, focal_from_fov
 from .errors import InputError
 from .gaussians import Gaussians
-from .io import read_image, read_masks, read_ply, read_video, write_video
+from .io import read_image, read_masks, read_ply, read_video, write_ply, write_video
+from .io.atomic import check_output_dir
 from .prior import SpatPrior
 from .progress import Reporter
 from .render import render
@@ -25,12 +26,12 @@ from .source import ExtractOptions, extract_prior
 from .source.depth import read_depths
 from .target.lift import LiftedTarget, LiftOptions, lift_image
 from .trajectory import Trajectory
-from .transfer.controls import retime
+from .transfer.controls import retime, scale_motion
 from .transfer.parts import labels_from_layout
 from .transfer.velocity import integrate
 
-__all__ = ["extract", "load_target", "relative_depth", "transfer", "fit_view", "render_frames", "render_video", "side_by_side",
-           "source_intrinsics", "DEFAULT_MAX_SIDE"]
+__all__ = ["extract", "load_target", "relative_depth", "transfer", "fit_view", "render_frames", "render_video",
+           "write_ply_frames", "side_by_side", "source_intrinsics", "DEFAULT_MAX_SIDE"]
 
 #: Long side above which source frames are downscaled (intrinsics follow).
 DEFAULT_MAX_SIDE = 960
@@ -115,14 +116,18 @@ def load_target(target: str | Path, *, size: tuple[int, int] | None = None,
 
 
 def transfer(prior: SpatPrior, target: LiftedTarget, *, frames: int | None = None, speed: float = 1.0,
-             anchor: str = "centroid") -> Trajectory:
+             loop: str = "hold", reverse: bool = False, rotation_scale: float = 1.0,
+             translation_scale: float = 1.0, anchor: str = "centroid") -> Trajectory:
     """Move the target as the prior's parts move; (T, N, 3) trajectory out.
 
     With ``anchor="centroid"`` the motion is taken as seen by a source camera
     aimed at the object (:meth:`SpatPrior.aimed_at_object`), since the target
-    sits on its camera's axis.
+    sits on its camera's axis. ``speed``, ``frames``, ``loop`` and
+    ``reverse`` retime the prior (:func:`~marionette.transfer.controls.retime`);
+    the scales multiply its rotation angles and centre displacements.
     """
-    prior = retime(prior, speed=speed, frames=frames)
+    prior = retime(prior, speed=speed, frames=frames, loop=loop, reverse=reverse)
+    prior = scale_motion(prior, rotation=rotation_scale, translation=translation_scale)
     if anchor == "centroid":
         prior = prior.aimed_at_object()
     if prior.num_parts == 1:
@@ -143,24 +148,37 @@ def fit_view(camera: Camera, trajectory: Trajectory, margin: float = 0.06, sampl
     return camera.framing(trajectory.means[:, ::step].reshape(-1, 3), margin)
 
 
-def render_frames(gaussians: Gaussians, trajectory: Trajectory, camera: Camera,
+def render_frames(gaussians: Gaussians, trajectory: Trajectory, camera: Camera | Sequence[Camera],
                   background: tuple[float, float, float] = (1.0, 1.0, 1.0),
                   progress=None) -> Iterator[np.ndarray]:
-    """Yield (H, W, 3) uint8 frames of the moving Gaussians."""
-    for t in range(trajectory.num_frames):
-        image = render(trajectory.frame(gaussians, t), camera, background).image
+    """Yield (H, W, 3) uint8 frames of the moving Gaussians, from one camera or one per frame."""
+    cameras = [camera] * trajectory.num_frames if isinstance(camera, Camera) else list(camera)
+    if len(cameras) != trajectory.num_frames:
+        raise InputError(f"{len(cameras)} cameras for {trajectory.num_frames} frames")
+    for t, cam in enumerate(cameras):
+        image = render(trajectory.frame(gaussians, t), cam, background).image
         if progress:
             progress(t + 1, trajectory.num_frames)
         yield (np.clip(image, 0, 1) * 255 + 0.5).astype(np.uint8)
 
 
-def render_video(path: str | Path, gaussians: Gaussians, trajectory: Trajectory, camera: Camera, *,
-                 fps: float, background: tuple[float, float, float] = (1.0, 1.0, 1.0),
+def render_video(path: str | Path, gaussians: Gaussians, trajectory: Trajectory, camera: Camera | Sequence[Camera],
+                 *, fps: float, background: tuple[float, float, float] = (1.0, 1.0, 1.0),
                  reporter: Reporter | None = None) -> None:
     """Render the trajectory and write it (MP4, GIF or a PNG folder, by suffix)."""
     reporter = reporter or Reporter(quiet=True)
     with reporter.stage("rendering", trajectory.num_frames) as progress:
         write_video(path, render_frames(gaussians, trajectory, camera, background, progress), fps)
+
+
+def write_ply_frames(folder: str | Path, gaussians: Gaussians, trajectory: Trajectory) -> list[Path]:
+    """Write each frame's moved Gaussians as ``folder/00000.ply`` … (3DGS layout); the paths written."""
+    folder = check_output_dir(folder)
+    folder.mkdir(exist_ok=True)
+    paths = [folder / f"{t:05d}.ply" for t in range(trajectory.num_frames)]
+    for t, path in enumerate(paths):
+        write_ply(path, trajectory.frame(gaussians, t))
+    return paths
 
 
 def side_by_side(left: np.ndarray, right: list[np.ndarray] | np.ndarray, *, height: int | None = None) -> Iterator[np.ndarray]:

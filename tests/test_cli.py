@@ -61,6 +61,17 @@ def test_transfer_speed_and_frames(tmp_path, prior_file, target_png):
     assert read_video(out).frames.shape[0] == 5
 
 
+def test_transfer_controls_and_per_frame_ply(tmp_path, prior_file, target_png):
+    out, plys = tmp_path / "out.mp4", tmp_path / "plys"
+    assert main(["transfer", str(prior_file), str(target_png), "-o", str(out), "-q", "--frames", "12",
+                 "--loop", "pingpong", "--reverse", "--rotation-scale", "2", "--camera", "dolly",
+                 "--ply-dir", str(plys)]) == 0
+    assert read_video(out).frames.shape[0] == 12
+    files = sorted(plys.glob("*.ply"))
+    assert len(files) == 12 and files[0].name == "00000.ply"
+    assert not np.allclose(read_ply(files[0]).means, read_ply(files[-1]).means, atol=1e-3)
+
+
 def test_render_command(tmp_path):
     g = Gaussians.from_rgb(np.array([[0.0, 0.0, 3.0]]), np.array([[1.0, 0.0, 0.0]]), np.array([0.3]), 0.99)
     write_ply(tmp_path / "scene.ply", g)
@@ -92,6 +103,12 @@ def test_render_command(tmp_path):
     (["extract", "{frames}", "-o", "{tmp}/p.npz", "--masks", "{tmp}/nomasks"], "nomasks"),
     (["extract", "{frames}", "-o", "{tmp}/p.npz", "--depth", "{tmp}/nodepth"], "nodepth"),
     (["render", "{tmp}/none.ply", "--camera", "{tmp}/none.json", "-o", "{tmp}/i.png"], "none.json"),
+    (["transfer", "{prior}", "{target}", "-o", "{out}", "--loop", "bounce"], "--loop"),
+    (["transfer", "{prior}", "{target}", "-o", "{out}", "--camera", "crane"], "--camera"),
+    (["transfer", "{prior}", "{target}", "-o", "{out}", "--camera", "orbit", "--camera-path", "{prior}"], "exclude"),
+    (["transfer", "{prior}", "{target}", "-o", "{out}", "--camera-path", "{tmp}/none.json"], "none.json"),
+    (["transfer", "{prior}", "{target}", "-o", "{out}", "--rotation-scale", "nan"], "--rotation-scale"),
+    (["transfer", "{prior}", "{target}", "-o", "{out}", "--camera", "dolly", "--camera-amount", "2"], "dolly"),
     (["transfer", "{prior}"], "Missing"),
     (["frobnicate"], "No such command"),
 ])

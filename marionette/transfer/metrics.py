@@ -1,0 +1,76 @@
+"""Quality of a transferred trajectory: local rigidity, separation at part boundaries, jerk.
+
+All three compare a trajectory of Gaussian means (T, N, 3) with its own
+frame 0 on a k-nearest-neighbour graph of the frame-0 means, so they need no
+ground truth:
+
+- rigidity error: mean over frames and within-part edges of
+  ``| |x_i(t) - x_j(t)| / |x_i(0) - x_j(0)| - 1 |`` (0 for a rigid motion);
+- boundary separation: share of edges across a part boundary whose length
+  grows by more than ``stretch`` (50 %) at some frame (a tear between parts);
+- jerk: RMS third time difference of the means, in object radii per frame³.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..trajectory import Trajectory
+
+__all__ = ["TrajectoryQuality", "knn_edges", "trajectory_quality"]
+
+
+@dataclass(frozen=True)
+class TrajectoryQuality:
+    """Figures of :func:`trajectory_quality`."""
+
+    rigidity_error: float
+    boundary_separation: float
+    jerk: float
+    edges_within: int
+    edges_across: int
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+def knn_edges(points: np.ndarray, k: int = 8) -> np.ndarray:
+    """Undirected edges (E, 2) int, i < j, between each of points (N, 3) and its ``k`` nearest neighbours."""
+    k = min(k, len(points) - 1)
+    if k < 1:
+        return np.zeros((0, 2), np.int64)
+    _, idx = cKDTree(points).query(points, k=k + 1)
+    i = np.repeat(np.arange(len(points)), k)
+    j = idx[:, 1:].ravel()
+    edges = np.sort(np.column_stack([i, j]), axis=1)
+    return np.unique(edges, axis=0)
+
+
+def trajectory_quality(trajectory: Trajectory, *, k: int = 8, stretch: float = 0.5,
+                       max_points: int = 20000, seed: int = 0) -> TrajectoryQuality:
+    """Rigidity error, boundary separation and jerk of a trajectory (see the module notes).
+
+    Up to ``max_points`` Gaussians (a random subset) enter the graph.
+    """
+    means = np.asarray(trajectory.means, dtype=np.float64)  # (T, N, 3)
+    labels = np.asarray(trajectory.labels)
+    if means.shape[1] > max_points:
+        keep = np.sort(np.random.default_rng(seed).choice(means.shape[1], max_points, replace=False))
+        means, labels = means[:, keep], labels[keep]
+    edges = knn_edges(means[0], k)
+    rest = np.linalg.norm(means[0, edges[:, 0]] - means[0, edges[:, 1]], axis=1)
+    ok = rest > 1e-9
+    edges, rest = edges[ok], rest[ok]
+    length = np.linalg.norm(means[:, edges[:, 0]] - means[:, edges[:, 1]], axis=2)  # (T, E)
+    change = length / rest - 1.0
+    within = labels[edges[:, 0]] == labels[edges[:, 1]]
+    rigidity = float(np.abs(change[:, within]).mean()) if within.any() else 0.0
+    across = ~within
+    separation = float((change[:, across].max(axis=0) > stretch).mean()) if across.any() else 0.0
+    radius = float(np.sqrt(((means[0] - means[0].mean(axis=0)) ** 2).sum(axis=1).mean())) or 1.0
+    third = np.diff(means, n=3, axis=0)
+    jerk = float(np.sqrt((third ** 2).sum(axis=2).mean()) / radius) if len(third) else 0.0
+    return TrajectoryQuality(rigidity, separation, jerk, int(within.sum()), int(across.sum()))
