@@ -17,7 +17,7 @@ import numpy as np
 from .camera import Camera, focal_from_fov
 from .errors import InputError
 from .gaussians import Gaussians
-from .io import read_image, read_masks, read_ply, read_video, write_ply, write_video
+from .io import read_image, read_mask, read_masks, read_ply, read_video, write_ply, write_video
 from .io.atomic import check_output_dir
 from .prior import SpatPrior
 from .progress import Reporter
@@ -88,12 +88,15 @@ def relative_depth(prior: SpatPrior, limits: tuple[float, float] = (2.0, 200.0))
     return float(np.clip(np.linalg.norm(centre) / prior.radii.max(), *limits))
 
 
-def load_target(target: str | Path, *, size: tuple[int, int] | None = None,
+def load_target(target: str | Path, *, size: tuple[int, int] | None = None, mask: str | Path | None = None,
                 options: LiftOptions = LiftOptions(), prior: SpatPrior | None = None) -> LiftedTarget:
     """Target image (RGB/RGBA) or 3DGS ``.ply`` → Gaussians with a reference camera.
 
     With a ``prior``, an image is lifted at the source's relative depth
-    (:func:`relative_depth`) unless ``options`` sets one. A ``.ply`` is taken
+    (:func:`relative_depth`) unless ``options`` sets one. ``mask`` is an
+    image file marking the object (default: alpha, plain-background key,
+    salient-object model, GrabCut; see
+    :func:`~marionette.target.lift.object_mask`). A ``.ply`` is taken
     as it is and viewed from the front (along +z) at ``size`` (512x512 by
     default).
     """
@@ -112,7 +115,8 @@ def load_target(target: str | Path, *, size: tuple[int, int] | None = None,
         image = cv2.resize(image, tuple(size), interpolation=cv2.INTER_AREA)
     if prior is not None and options.relative_depth is None:
         options = replace(options, relative_depth=relative_depth(prior))
-    return lift_image(image, options=options)
+    object_pixels = None if mask is None else read_mask(mask, size=(image.shape[1], image.shape[0]))
+    return lift_image(image, mask=object_pixels, options=options)
 
 
 def transfer(prior: SpatPrior, target: LiftedTarget, *, frames: int | None = None, speed: float = 1.0,

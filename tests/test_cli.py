@@ -72,6 +72,17 @@ def test_transfer_controls_and_per_frame_ply(tmp_path, prior_file, target_png):
     assert not np.allclose(read_ply(files[0]).means, read_ply(files[-1]).means, atol=1e-3)
 
 
+def test_target_mask_file_selects_the_object(tmp_path, target_png):
+    from marionette import pipeline
+
+    mask = np.zeros((64, 64), np.uint8)
+    mask[20:44, 16:32] = 255  # the left half of the square only
+    cv2.imwrite(str(tmp_path / "mask.png"), mask)
+    whole = pipeline.load_target(target_png)
+    half = pipeline.load_target(target_png, mask=tmp_path / "mask.png")
+    assert half.mask.sum() == (mask > 0).sum() and half.mask.sum() < 0.6 * whole.mask.sum()
+
+
 def test_render_command(tmp_path):
     g = Gaussians.from_rgb(np.array([[0.0, 0.0, 3.0]]), np.array([[1.0, 0.0, 0.0]]), np.array([0.3]), 0.99)
     write_ply(tmp_path / "scene.ply", g)
@@ -104,6 +115,7 @@ def test_render_command(tmp_path):
     (["extract", "{frames}", "-o", "{tmp}/p.npz", "--depth", "{tmp}/nodepth"], "nodepth"),
     (["render", "{tmp}/none.ply", "--camera", "{tmp}/none.json", "-o", "{tmp}/i.png"], "none.json"),
     (["transfer", "{prior}", "{target}", "-o", "{out}", "--loop", "bounce"], "--loop"),
+    (["transfer", "{prior}", "{target}", "-o", "{out}", "--target-mask", "{tmp}/nomask.png"], "nomask.png"),
     (["transfer", "{prior}", "{target}", "-o", "{out}", "--camera", "crane"], "--camera"),
     (["transfer", "{prior}", "{target}", "-o", "{out}", "--camera", "orbit", "--camera-path", "{prior}"], "exclude"),
     (["transfer", "{prior}", "{target}", "-o", "{out}", "--camera-path", "{tmp}/none.json"], "none.json"),

@@ -2,10 +2,10 @@
 
 from .ply import read_ply, write_ply
 from .prior import read_prior, write_prior
-from .video import Video, read_image, read_masks, read_video, write_image, write_video
+from .video import Video, read_image, read_mask, read_masks, read_video, write_image, write_video
 
 __all__ = [
     "read_ply", "write_ply",
     "read_prior", "write_prior",
-    "Video", "read_video", "read_masks", "read_image", "write_video", "write_image",
+    "Video", "read_video", "read_masks", "read_mask", "read_image", "write_video", "write_image",
 ]

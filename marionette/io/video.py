@@ -31,7 +31,7 @@ from PIL import Image, ImageSequence
 from ..errors import InputError
 from .atomic import atomic_path
 
-__all__ = ["Video", "read_video", "read_masks", "read_image", "write_video", "write_image"]
+__all__ = ["Video", "read_video", "read_masks", "read_mask", "read_image", "write_video", "write_image"]
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv", ".flv", ".gif")
@@ -233,6 +233,17 @@ def _image_files(folder: Path) -> list[Path]:
 def _natural_key(name: str) -> list:
     """Sort key that orders digit runs by value: ``2.png`` < ``10.png``."""
     return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", name)]
+
+
+def read_mask(path: str | Path, size: tuple[int, int] | None = None) -> np.ndarray:
+    """One mask image → (H, W) bool (rules of :func:`read_masks`), resized to ``size`` (W, H) if given."""
+    path = Path(path)
+    mask = _mask_from_image(read_image(path), lossy=path.suffix.lower() in (".jpg", ".jpeg"))
+    if size is not None and (mask.shape[1], mask.shape[0]) != tuple(size):
+        mask = cv2.resize(mask.view(np.uint8), tuple(size), interpolation=cv2.INTER_NEAREST) > 0
+    if not mask.any():
+        raise InputError(f"mask {path.name} is empty")
+    return mask
 
 
 def _mask_from_image(image: np.ndarray, *, lossy: bool) -> np.ndarray:

@@ -16,6 +16,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import InputError
+from ..segment import grabcut_mask, salient_mask
 from ..gaussians import Gaussians
 
 __all__ = ["LiftOptions", "LiftedTarget", "lift_image", "object_mask", "inflate_silhouette",
@@ -77,9 +78,10 @@ class LiftedTarget:
 def object_mask(image: np.ndarray) -> np.ndarray:
     """(H, W, 3 or 4) uint8 image → (H, W) bool object mask.
 
-    The alpha channel when there is one; otherwise the object is what differs
-    from the plain background colour seen along the image border (a
-    salient-object model takes this role in a later stage).
+    In order: the alpha channel when it holds a mask; the object keyed from a
+    plain background (what differs from the colour along the image border,
+    exact for product shots and renders); the bundled salient-object model
+    (U²-Netp); GrabCut from a centred box when the model finds nothing.
     """
     if image.ndim != 3 or image.shape[2] not in (3, 4):
         raise InputError(f"target image must be RGB or RGBA, got shape {image.shape}")
@@ -87,24 +89,36 @@ def object_mask(image: np.ndarray) -> np.ndarray:
         mask = image[..., 3] >= 128
         if not mask.any():
             raise InputError("target image is fully transparent: its alpha channel holds no object")
-        if mask.all():
-            # An opaque alpha channel carries no mask; fall back to the border key.
-            return object_mask(image[..., :3])
+        if not mask.all():
+            return mask
+        image = image[..., :3]  # an opaque alpha channel carries no mask
+    keyed = _key_plain_background(image)
+    if keyed is not None:
+        return keyed
+    try:
+        return salient_mask(image)
+    except InputError:
+        mask = grabcut_mask(image)
+        if not mask.any():
+            raise InputError("no object found in the target image; give an RGBA image (alpha = object) or "
+                             "--target-mask FILE") from None
         return mask
-    rgb = image.astype(np.float32)
+
+
+def _key_plain_background(rgb: np.ndarray) -> np.ndarray | None:
+    """The object on a plain background (largest component, holes filled), or None if the border is busy."""
+    rgb = rgb.astype(np.float32)
     border = np.concatenate([rgb[0], rgb[-1], rgb[:, 0], rgb[:, -1]])
     bg = np.median(border, axis=0)
     spread = np.median(np.abs(border - bg).sum(axis=1))
     if spread > 30:
-        raise InputError("target image has no alpha channel and no plain background to separate the object "
-                         "from; give an RGBA image (alpha = object)")
+        return None
     diff = np.abs(rgb - bg).sum(axis=2)
     mask = (diff > max(40.0, 4 * spread)).astype(np.uint8)
     mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
-    # Keep the largest connected component and fill its holes.
     n, lab, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
     if n < 2:
-        raise InputError("no object found in the target image (it looks like plain background)")
+        return None
     keep = (lab == 1 + np.argmax(stats[1:, cv2.CC_STAT_AREA])).astype(np.uint8)
     filled = keep.copy()
     flood = np.zeros((keep.shape[0] + 2, keep.shape[1] + 2), np.uint8)
