@@ -64,7 +64,7 @@ def test_transfer_speed_and_frames(tmp_path, prior_file, target_png):
 def test_transfer_controls_and_per_frame_ply(tmp_path, prior_file, target_png):
     out, plys = tmp_path / "out.mp4", tmp_path / "plys"
     assert main(["transfer", str(prior_file), str(target_png), "-o", str(out), "-q", "--frames", "12",
-                 "--loop", "pingpong", "--reverse", "--rotation-scale", "2", "--camera", "dolly",
+                 "--loop", "pingpong", "--reverse", "--rotation-scale", "2", "--camera", "dolly", "--anchor", "world",
                  "--ply-dir", str(plys)]) == 0
     assert read_video(out).frames.shape[0] == 12
     files = sorted(plys.glob("*.ply"))
@@ -115,6 +115,7 @@ def test_render_command(tmp_path):
     (["extract", "{frames}", "-o", "{tmp}/p.npz", "--depth", "{tmp}/nodepth"], "nodepth"),
     (["render", "{tmp}/none.ply", "--camera", "{tmp}/none.json", "-o", "{tmp}/i.png"], "none.json"),
     (["transfer", "{prior}", "{target}", "-o", "{out}", "--loop", "bounce"], "--loop"),
+    (["transfer", "{prior}", "{target}", "-o", "{out}", "--anchor", "moon"], "--anchor"),
     (["transfer", "{prior}", "{target}", "-o", "{out}", "--target-mask", "{tmp}/nomask.png"], "nomask.png"),
     (["transfer", "{prior}", "{target}", "-o", "{out}", "--camera", "crane"], "--camera"),
     (["transfer", "{prior}", "{target}", "-o", "{out}", "--camera", "orbit", "--camera-path", "{prior}"], "exclude"),
