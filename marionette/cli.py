@@ -71,6 +71,21 @@ def _parse_parts(text: str) -> int | str:
     return int(text)
 
 
+def _parse_part_seeds(items: list[str] | None) -> dict[int, tuple[float, float]] | None:
+    """['K:X,Y', …] → {K: (X, Y)}."""
+    if not items:
+        return None
+    seeds = {}
+    for item in items:
+        try:
+            part, xy = item.split(":")
+            x, y = (float(v) for v in xy.split(","))
+            seeds[int(part)] = (x, y)
+        except ValueError:
+            raise InputError(f"--part-seed must be K:X,Y (part, target pixel), got {item!r}") from None
+    return seeds
+
+
 def _video_output(path: Path) -> Path:
     if path.suffix.lower() not in VIDEO_SUFFIXES:
         raise InputError(f"unsupported video output {path.name!r}: use .mp4, .gif or a folder name")
@@ -152,6 +167,7 @@ Size = Annotated[Optional[str], typer.Option(help="Output size WIDTHxHEIGHT for 
 CameraMove = Annotated[str, typer.Option("--camera", help="Camera move: static, orbit or dolly.")]
 CameraAmount = Annotated[Optional[float], typer.Option(help="Orbit degrees (default 30) or dolly share of the distance (default 0.3).")]
 CameraPath = Annotated[Optional[Path], typer.Option(help="JSON list of CAMERA.json objects, one per frame (or one).")]
+PartSeed = Annotated[Optional[list[str]], typer.Option(help="Seed of a part on the target, K:X,Y in target pixels (repeatable; default: matched from the source's part layout).")]
 Anchor = Annotated[str, typer.Option(help="Turn each part about its own centre ('centroid') or about the source's world origin as the paper does ('world').")]
 TargetMask = Annotated[Optional[Path], typer.Option(help="Image marking the target object (default: alpha, else found automatically).")]
 PlyDir = Annotated[Optional[Path], typer.Option(help="Also write each frame's Gaussians as DIR/00000.ply ….")]
@@ -176,10 +192,11 @@ class _Playback:
     ply_dir: Path | None
     target_mask: Path | None
     anchor: str
+    part_seeds: dict[int, tuple[float, float]] | None
 
 
 def _playback(output: Path, frames, speed, loop, reverse, rotation_scale, translation_scale, fps, background, size,
-              camera, camera_amount, camera_path, ply_dir, target_mask, anchor) -> _Playback:
+              camera, camera_amount, camera_path, ply_dir, target_mask, anchor, part_seed) -> _Playback:
     """Check every playback option (before any work starts) and the output paths."""
     _transfer_checks(frames, speed, fps)
     if loop not in LOOPS:
@@ -201,14 +218,16 @@ def _playback(output: Path, frames, speed, loop, reverse, rotation_scale, transl
     if target_mask is not None and not target_mask.is_file():
         raise InputError(f"target mask {target_mask} does not exist")
     return _Playback(frames, speed, loop, reverse, rotation_scale, translation_scale, fps, _parse_rgb(background),
-                     _parse_size(size), camera, camera_amount, camera_path, ply_dir, target_mask, anchor)
+                     _parse_size(size), camera, camera_amount, camera_path, ply_dir, target_mask, anchor,
+                     _parse_part_seeds(part_seed))
 
 
 def _transfer_and_render(prior, target: Path, output: Path, play: _Playback, reporter: Reporter) -> None:
     lifted = pipeline.load_target(target, size=play.size, mask=play.target_mask, prior=prior)
     trajectory = pipeline.transfer(prior, lifted, frames=play.frames, speed=play.speed, loop=play.loop,
                                    reverse=play.reverse, rotation_scale=play.rotation_scale,
-                                   translation_scale=play.translation_scale, anchor=play.anchor)
+                                   translation_scale=play.translation_scale, anchor=play.anchor,
+                                   part_seeds=play.part_seeds)
     if play.camera_path is not None:
         cameras = load_camera_path(play.camera_path, trajectory.num_frames)
     else:
@@ -227,10 +246,11 @@ def transfer(prior: Annotated[Path, typer.Argument(help="SpaT prior .npz.")],
              rotation_scale: RotationScale = 1.0, translation_scale: TranslationScale = 1.0, fps: Fps = None,
              background: Background = "1,1,1", size: Size = None, camera: CameraMove = "static",
              camera_amount: CameraAmount = None, camera_path: CameraPath = None, ply_dir: PlyDir = None,
-             target_mask: TargetMask = None, anchor: Anchor = "centroid", quiet: Quiet = False) -> None:
+             target_mask: TargetMask = None, anchor: Anchor = "centroid", part_seed: PartSeed = None,
+             quiet: Quiet = False) -> None:
     """Apply a SpaT prior to a target image or .ply and render the video."""
     play = _playback(output, frames, speed, loop, reverse, rotation_scale, translation_scale, fps, background, size,
-                     camera, camera_amount, camera_path, ply_dir, target_mask, anchor)
+                     camera, camera_amount, camera_path, ply_dir, target_mask, anchor, part_seed)
     _transfer_and_render(read_prior(prior), target, output, play, Reporter(quiet))
 
 
@@ -244,10 +264,11 @@ def run(source: Annotated[Path, typer.Argument(help="Video file or folder of fra
         rotation_scale: RotationScale = 1.0, translation_scale: TranslationScale = 1.0, fps: Fps = None,
         background: Background = "1,1,1", size: Size = None, camera: CameraMove = "static",
         camera_amount: CameraAmount = None, camera_path: CameraPath = None, ply_dir: PlyDir = None,
-        target_mask: TargetMask = None, anchor: Anchor = "centroid", quiet: Quiet = False) -> None:
+        target_mask: TargetMask = None, anchor: Anchor = "centroid", part_seed: PartSeed = None,
+             quiet: Quiet = False) -> None:
     """Extract the source's motion and transfer it onto the target in one go."""
     play = _playback(output, frames, speed, loop, reverse, rotation_scale, translation_scale, fps, background, size,
-                     camera, camera_amount, camera_path, ply_dir, target_mask, anchor)
+                     camera, camera_amount, camera_path, ply_dir, target_mask, anchor, part_seed)
     if not Path(target).exists():
         raise InputError(f"target {target} does not exist")
     reporter = Reporter(quiet)

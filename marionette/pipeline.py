@@ -27,7 +27,7 @@ from .source.depth import read_depths
 from .target.lift import LiftedTarget, LiftOptions, lift_image
 from .trajectory import Trajectory
 from .transfer.controls import retime, scale_motion
-from .transfer.parts import labels_from_layout
+from .transfer.parts import labels_from_seeds, seeds_from_layout
 from .transfer.velocity import integrate
 
 __all__ = ["extract", "load_target", "relative_depth", "transfer", "fit_view", "render_frames", "render_video",
@@ -121,7 +121,8 @@ def load_target(target: str | Path, *, size: tuple[int, int] | None = None, mask
 
 def transfer(prior: SpatPrior, target: LiftedTarget, *, frames: int | None = None, speed: float = 1.0,
              loop: str = "hold", reverse: bool = False, rotation_scale: float = 1.0,
-             translation_scale: float = 1.0, anchor: str = "centroid") -> Trajectory:
+             translation_scale: float = 1.0, anchor: str = "centroid",
+             part_seeds: dict[int, tuple[float, float]] | None = None) -> Trajectory:
     """Move the target as the prior's parts move; (T, N, 3) trajectory out.
 
     With ``anchor="centroid"`` the motion is taken as seen by a source camera
@@ -129,17 +130,23 @@ def transfer(prior: SpatPrior, target: LiftedTarget, *, frames: int | None = Non
     sits on its camera's axis. ``speed``, ``frames``, ``loop`` and
     ``reverse`` retime the prior (:func:`~marionette.transfer.controls.retime`);
     the scales multiply its rotation angles and centre displacements.
+    Parts are assigned by geodesic flood fill from ``part_seeds`` (part →
+    target pixel x, y), or from seeds matched to the source's part layout.
     """
     prior = retime(prior, speed=speed, frames=frames, loop=loop, reverse=reverse)
     prior = scale_motion(prior, rotation=rotation_scale, translation=translation_scale)
     if anchor == "centroid":
         prior = prior.aimed_at_object()
-    if prior.num_parts == 1:
-        labels = np.zeros(len(target.gaussians), np.int32)
-    elif "labels" in prior.extras and np.ndim(prior.extras["labels"]) == 2:
-        labels = labels_from_layout(target.pixel_of, target.mask, prior.extras["labels"])
+    if part_seeds:
+        bad = [k for k in part_seeds if not 0 <= k < prior.num_parts]
+        if bad:
+            raise InputError(f"part seed for part {bad[0]}, but the prior has parts 0..{prior.num_parts - 1}")
+        labels = labels_from_seeds(target.gaussians.means, target.pixel_of, part_seeds)
+    elif prior.num_parts > 1 and np.ndim(prior.extras.get("labels")) == 2:
+        seeds = seeds_from_layout(np.asarray(prior.extras["labels"]), target.mask)
+        labels = labels_from_seeds(target.gaussians.means, target.pixel_of, seeds)
     else:
-        labels = np.zeros(len(target.gaussians), np.int32)  # no layout stored: move as the largest part
+        labels = np.zeros(len(target.gaussians), np.int32)  # one part, or no layout stored: the largest part
     return integrate(target.gaussians.means, labels, prior, anchor=anchor)
 
 

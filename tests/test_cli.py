@@ -116,6 +116,8 @@ def test_render_command(tmp_path):
     (["render", "{tmp}/none.ply", "--camera", "{tmp}/none.json", "-o", "{tmp}/i.png"], "none.json"),
     (["transfer", "{prior}", "{target}", "-o", "{out}", "--loop", "bounce"], "--loop"),
     (["transfer", "{prior}", "{target}", "-o", "{out}", "--anchor", "moon"], "--anchor"),
+    (["transfer", "{prior}", "{target}", "-o", "{out}", "--part-seed", "1-3"], "--part-seed"),
+    (["transfer", "{prior}", "{target}", "-o", "{out}", "--part-seed", "1:3,4"], "part seed for part 1"),
     (["transfer", "{prior}", "{target}", "-o", "{out}", "--target-mask", "{tmp}/nomask.png"], "nomask.png"),
     (["transfer", "{prior}", "{target}", "-o", "{out}", "--camera", "crane"], "--camera"),
     (["transfer", "{prior}", "{target}", "-o", "{out}", "--camera", "orbit", "--camera-path", "{prior}"], "exclude"),

@@ -1,10 +1,25 @@
-"""Which target Gaussian follows which source part."""
+"""Which target Gaussian follows which source part.
+
+Parts are grown from seeds by a geodesic flood fill: each Gaussian takes the
+part of the seed nearest to it along a k-nearest-neighbour graph of the
+rest positions (distances summed along graph edges, so a part does not leak
+across a gap into another limb the way straight-line distance would). Seeds
+are given in target pixels, or matched from the source's part layout: each
+source part's centroid, normalised to the object's bounding box, placed at
+the same relative position in the target.
+"""
 
 from __future__ import annotations
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import dijkstra
+from scipy.spatial import cKDTree
 
-__all__ = ["labels_from_layout"]
+from ..errors import InputError
+from .metrics import knn_edges
+
+__all__ = ["seeds_from_layout", "labels_from_seeds", "boundary_band"]
 
 
 def _bbox(mask: np.ndarray) -> tuple[float, float, float, float]:
@@ -12,34 +27,59 @@ def _bbox(mask: np.ndarray) -> tuple[float, float, float, float]:
     return float(u.min()), float(v.min()), float(u.max() - u.min() + 1), float(v.max() - v.min() + 1)
 
 
-def labels_from_layout(pixel_of: np.ndarray, target_mask: np.ndarray, source_labels: np.ndarray) -> np.ndarray:
-    """Part label per target Gaussian by matching the objects' normalised layouts.
+def seeds_from_layout(source_labels: np.ndarray, target_mask: np.ndarray) -> dict[int, tuple[float, float]]:
+    """One target pixel (x, y) per source part: its centroid at the same place relative to the object's box.
 
-    Each Gaussian's source pixel is mapped into the source object's bounding
-    box at the same relative position, and takes the label of the nearest
-    labelled source pixel there.
-
-    Parameters
-    ----------
-    pixel_of : (N, 2) int, (u, v) target pixel each Gaussian came from.
-    target_mask : (H, W) bool, target object mask.
-    source_labels : (Hs, Ws) int, part per source frame-0 pixel, -1 background.
-
-    Returns
-    -------
-    (N,) int32 labels.
+    source_labels : (Hs, Ws) int, part per source frame-0 pixel, negative off the object.
+    target_mask : (H, W) bool.
     """
-    from scipy.ndimage import distance_transform_edt
-
     src_obj = source_labels >= 0
-    if not src_obj.any():
-        return np.zeros(len(pixel_of), np.int32)
-    tu, tv, tw, th = _bbox(target_mask)
     su, sv, sw, sh = _bbox(src_obj)
-    u = su + (pixel_of[:, 0] - tu + 0.5) / tw * sw - 0.5
-    v = sv + (pixel_of[:, 1] - tv + 0.5) / th * sh - 0.5
-    u = np.clip(np.rint(u), 0, source_labels.shape[1] - 1).astype(int)
-    v = np.clip(np.rint(v), 0, source_labels.shape[0] - 1).astype(int)
-    # Nearest labelled source pixel for every source pixel (background included).
-    _, (iv, iu) = distance_transform_edt(~src_obj, return_indices=True)
-    return source_labels[iv[v, u], iu[v, u]].astype(np.int32)
+    tu, tv, tw, th = _bbox(target_mask)
+    seeds = {}
+    for k in np.unique(source_labels[src_obj]):
+        v, u = np.nonzero(source_labels == k)
+        seeds[int(k)] = (tu + (u.mean() - su + 0.5) / sw * tw - 0.5, tv + (v.mean() - sv + 0.5) / sh * th - 0.5)
+    return seeds
+
+
+def labels_from_seeds(means: np.ndarray, pixel_of: np.ndarray, seeds: dict[int, tuple[float, float]],
+                      k: int = 8) -> np.ndarray:
+    """(N,) int32 part of each Gaussian by geodesic flood fill from seed pixels.
+
+    means : (N, 3) rest positions; pixel_of : (N, 2) the target pixel each came from;
+    seeds : part → (x, y) target pixel. A seed starts at the Gaussian made from
+    the nearest pixel (the front-most of those). Gaussians the graph does not
+    reach take the part of the nearest Gaussian that it does.
+    """
+    if not seeds:
+        raise InputError("no part seeds given")
+    means = np.asarray(means, dtype=np.float64)
+    parts = sorted(seeds)
+    by_pixel = cKDTree(np.asarray(pixel_of, dtype=np.float64))
+    starts = []
+    for part in parts:
+        _, idx = by_pixel.query(np.asarray(seeds[part], dtype=np.float64), k=min(8, len(means)))
+        idx = np.atleast_1d(idx)
+        starts.append(int(idx[np.argmin(means[idx, 2])]))
+    edges = knn_edges(means, k)
+    length = np.linalg.norm(means[edges[:, 0]] - means[edges[:, 1]], axis=1) + 1e-12
+    graph = coo_matrix((length, (edges[:, 0], edges[:, 1])), shape=(len(means),) * 2).tocsr()
+    # With min_only, the third output is the start each node is nearest to (-9999 when unreached).
+    dist, _, source = dijkstra(graph, directed=False, indices=starts, min_only=True, return_predecessors=True)
+    part_of_start = {s: p for s, p in zip(starts, parts)}
+    labels = np.array([part_of_start.get(s, -1) for s in source], np.int32)
+    lost = ~np.isfinite(dist)
+    if lost.any():
+        _, near = cKDTree(means[~lost]).query(means[lost])
+        labels[lost] = labels[~lost][near]
+    return labels
+
+
+def boundary_band(means: np.ndarray, labels: np.ndarray, k: int = 8) -> np.ndarray:
+    """(N,) bool: Gaussians with a k-nearest neighbour in another part."""
+    edges = knn_edges(np.asarray(means, dtype=np.float64), k)
+    across = labels[edges[:, 0]] != labels[edges[:, 1]]
+    band = np.zeros(len(means), bool)
+    band[edges[across].ravel()] = True
+    return band
