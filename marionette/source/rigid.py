@@ -55,6 +55,8 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from scipy import sparse
+from scipy.optimize import least_squares
 from scipy.spatial import cKDTree
 
 from ..geometry import axis_angle_to_matrix, invert_transform, make_transform, se3_interpolate, transform_points
@@ -416,108 +418,113 @@ def _huber_weights(norms: np.ndarray, scale: float) -> tuple[np.ndarray, float]:
     return np.where(big, scale / np.maximum(norms, 1e-300), 1.0), float(cost)
 
 
+def _left_jacobian(w: np.ndarray) -> np.ndarray:
+    """Left Jacobians (F, 3, 3) of the rotation exponential at rotation vectors w (F, 3): exp(w + δ) ≈ exp(J δ) exp(w)."""
+    theta = np.linalg.norm(w, axis=1)[:, None, None]
+    small = theta < 1e-6
+    theta = np.where(small, 1.0, theta)
+    a = np.where(small, 0.5, (1 - np.cos(theta)) / theta**2)
+    b = np.where(small, 1 / 6, (theta - np.sin(theta)) / theta**3)
+    skew = _skew(w)
+    return np.eye(3) + a * skew + b * skew @ skew
+
+
+def _huber_irls(z: np.ndarray) -> np.ndarray:
+    """Huber loss for ``least_squares``: ρ, ρ′ and ρ″ (3, m) of squared scaled residuals z (m,).
+
+    ρ″ is reported as 0, so the solver weights Jacobian rows by √ρ′ as IRLS
+    does; with the true ρ″ its curvature correction (Triggs et al. 1999)
+    zeroes the rows of residuals in the linear zone, which stalls it when a
+    refinement starts far off.
+    """
+    big = z > 1
+    root = np.sqrt(np.where(big, z, 1.0))
+    return np.stack([np.where(big, 2 * root - 1, z), np.where(big, 1 / root, 1.0), np.zeros_like(z)])
+
+
 def _bundle_adjust(observed: np.ndarray, uv: np.ndarray, k: np.ndarray, poses: np.ndarray, points: np.ndarray,
                    directions: np.ndarray, free: np.ndarray, radius: float, options: RigidOptions,
                    iterations: int = 30) -> tuple[np.ndarray, np.ndarray]:
     """Jointly refine the poses of frames ``free`` (F,) and N points (N, 3) observed at ``uv`` (T, N, 2).
 
-    Minimises the Huber cost of the reprojection errors (pixels) of the
-    observations marked in ``observed`` (T, N) bool at frame 0 and the free
-    frames, plus
-    ``(depth_prior_weight * n·(X - X_lift) / radius)²`` per point, with ``n``
-    (N, 3) the point's unit lifting ray in body coordinates. Levenberg–
-    Marquardt with iteratively reweighted Gauss–Newton steps, solved by the
-    Schur complement on the poses (Triggs et al. 1999, Sec. 6.1): the point
-    blocks (3x3 each) are eliminated and the reduced (6F, 6F) pose system is
-    solved densely. Poses are updated as ``R ← exp(ω) R, t ← t + δt``.
+    Minimises the Huber cost (scale ``refine_loss_scale``) of the
+    reprojection errors (pixels) of the observations marked in ``observed``
+    (T, N) bool at frame 0 and the free frames, plus the depth prior
+    ``depth_prior_weight * n·(X - X_lift) / radius`` per point, with ``n``
+    (N, 3) the point's unit lifting ray in body coordinates. Solved by
+    ``scipy.optimize.least_squares`` (trust region reflective) with the
+    analytic Jacobian as a sparse matrix: each residual depends on one pose
+    and one point only. Poses are parametrised as ``R = exp(ω) R₀,
+    t = t₀ + δt`` about their starting values; ``iterations`` bounds the
+    number of cost evaluations.
 
     Returns refined poses (T, 4, 4) (other frames unchanged) and points (N, 3).
     """
-    num_frames = len(poses)
     f_count, n_count = len(free), len(points)
-    slot = np.full(num_frames, -1)
+    slot = np.full(len(poses), -1)
     slot[free] = np.arange(f_count)
     pose_known = slot >= 0
     pose_known[0] = True
     obs_t, obs_i = np.nonzero(observed & pose_known[:, None])  # (O,) frame and point
     obs_uv = uv[obs_t, obs_i].astype(np.float64)  # (O, 2)
-    obs_slot = slot[obs_t]
-    moving = obs_slot >= 0  # observations whose pose is a variable
+    moving = np.nonzero(slot[obs_t] >= 0)[0]  # observations whose pose is a variable
+    obs_slot = slot[obs_t[moving]]
     fxy = np.array([k[0, 0], k[1, 1]])
-    x_lift = points.copy()
     prior_w = options.depth_prior_weight / radius
+    rot0, trans0 = poses[:, :3, :3], poses[:, :3, 3]
 
-    def evaluate(rot: np.ndarray, trans: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, ...]:
+    # Sparsity of the Jacobian: rows (2 per observation, then one per point) × columns (6 per free pose, 3 per point).
+    o_count = len(obs_t)
+    rows = np.concatenate([
+        np.repeat(2 * moving[:, None] + np.arange(2), 6, axis=1).ravel(),
+        np.repeat(2 * np.arange(o_count)[:, None] + np.arange(2), 3, axis=1).ravel(),
+        np.repeat(2 * o_count + np.arange(n_count), 3)])
+    point_cols = 6 * f_count + 3 * np.arange(n_count)[:, None] + np.arange(3)  # (N, 3)
+    cols = np.concatenate([
+        np.tile(6 * obs_slot[:, None] + np.arange(6), 2).ravel(),
+        np.tile(point_cols[obs_i], 2).ravel(),
+        point_cols.ravel()])
+    shape = (2 * o_count + n_count, 6 * f_count + 3 * n_count)
+
+    def unpack(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        omega = x[:6 * f_count].reshape(f_count, 6)
+        rot, trans = rot0.copy(), trans0.copy()
+        rot[free] = axis_angle_to_matrix(omega[:, :3]) @ rot0[free]
+        trans[free] += omega[:, 3:]
+        pts = x[6 * f_count:].reshape(n_count, 3)
+        return rot, trans, pts, omega[:, :3]
+
+    def residuals(x: np.ndarray) -> np.ndarray:
+        rot, trans, pts, _ = unpack(x)
+        cam = np.einsum("oij,oj->oi", rot[obs_t], pts[obs_i]) + trans[obs_t]
+        prior = prior_w * np.einsum("ni,ni->n", directions, pts - points)
+        return np.concatenate([(_project(k, cam) - obs_uv).ravel(), prior])
+
+    def jacobian(x: np.ndarray) -> sparse.csr_matrix:
+        rot, trans, pts, omega = unpack(x)
         rx = np.einsum("oij,oj->oi", rot[obs_t], pts[obs_i])  # (O, 3)
         cam = rx + trans[obs_t]
-        err = _project(k, cam) - obs_uv  # (O, 2)
-        prior = prior_w * np.einsum("ni,ni->n", directions, pts - x_lift)  # (N,)
-        weights, cost = _huber_weights(np.linalg.norm(err, axis=1), options.refine_loss_scale)
-        return rx, cam, err, prior, weights, cost + float(prior @ prior)
-
-    rot, trans, pts = poses[:, :3, :3].copy(), poses[:, :3, 3].copy(), points.copy()
-    rx, cam, err, prior, weights, cost = evaluate(rot, trans, pts)
-    damping = 1e-3
-    for _ in range(iterations):
         z = cam[:, 2]
-        j_proj = np.zeros((len(z), 2, 3))  # d pixel / d camera point
+        j_proj = np.zeros((o_count, 2, 3))  # d pixel / d camera point
         j_proj[:, 0, 0], j_proj[:, 1, 1] = fxy[0] / z, fxy[1] / z
         j_proj[:, :, 2] = -fxy * cam[:, :2] / z[:, None] ** 2
-        j_pose = np.concatenate([-j_proj @ _skew(rx), j_proj], axis=2)  # (O, 2, 6)
-        j_point = j_proj @ rot[obs_t]  # (O, 2, 3)
-        wj_pose, wj_point = weights[:, None, None] * j_pose, weights[:, None, None] * j_point
+        j_proj_moving = j_proj[moving]
+        # d(exp(ω) R₀ X)/dω = -[R X]ₓ J_l(ω).
+        j_rot = -j_proj_moving @ _skew(rx[moving]) @ _left_jacobian(omega)[obs_slot]
+        values = np.concatenate([
+            np.concatenate([j_rot, j_proj_moving], axis=2).ravel(),
+            (j_proj @ rot[obs_t]).ravel(),
+            prior_w * directions.ravel()])
+        return sparse.csr_matrix((values, (rows, cols)), shape=shape)
 
-        # Normal equations, blockwise: A (F, 6, 6) poses, C (N, 3, 3) points, B (O, 6, 3) couplings.
-        a = np.zeros((f_count, 6, 6))
-        g = np.zeros((f_count, 6))
-        np.add.at(a, obs_slot[moving], np.einsum("oki,okj->oij", wj_pose[moving], j_pose[moving]))
-        np.add.at(g, obs_slot[moving], np.einsum("oki,ok->oi", wj_pose[moving], err[moving]))
-        c = np.zeros((n_count, 3, 3))
-        h = np.zeros((n_count, 3))
-        np.add.at(c, obs_i, np.einsum("oki,okj->oij", wj_point, j_point))
-        np.add.at(h, obs_i, np.einsum("oki,ok->oi", wj_point, err))
-        c += prior_w**2 * directions[:, :, None] * directions[:, None, :]
-        h += prior_w * prior[:, None] * directions
-        b = np.einsum("oki,okj->oij", wj_pose[moving], j_point[moving])  # (O', 6, 3)
-
-        # Couplings in a dense (N, F·6, 3) layout: the Schur complement is then one matrix product.
-        b_dense = np.zeros((n_count, f_count, 6, 3))
-        b_dense[obs_i[moving], obs_slot[moving]] = b
-        b_dense = b_dense.reshape(n_count, 6 * f_count, 3)
-        diag = (6 * np.arange(f_count)[:, None, None] + np.arange(6)[None, :, None],
-                6 * np.arange(f_count)[:, None, None] + np.arange(6)[None, None, :])
-        while damping <= 1e8:
-            a_d = a + damping * (np.einsum("fii->fi", a)[:, :, None] * np.eye(6) + 1e-9 * np.eye(6))
-            c_d = c + damping * (np.einsum("nii->ni", c)[:, :, None] * np.eye(3) + 1e-9 * np.eye(3))
-            c_inv = np.linalg.inv(c_d)
-            e = b_dense @ c_inv  # (N, 6F, 3) = B C⁻¹ per point
-            # Reduced system S = A - Σ_n E_n B_nᵀ, r = g - Σ_n E_n h_n.
-            s_mat = -(e.transpose(1, 0, 2).reshape(6 * f_count, -1)
-                      @ b_dense.transpose(0, 2, 1).reshape(-1, 6 * f_count))
-            s_mat[diag] += a_d
-            r_vec = g.ravel() - np.einsum("nfk,nk->f", e, h)
-            try:
-                d_pose = -np.linalg.solve(s_mat, r_vec).reshape(f_count, 6)
-            except np.linalg.LinAlgError:
-                damping *= 10
-                continue
-            d_point = -np.einsum("nij,nj->ni", c_inv, h + np.einsum("nfk,f->nk", b_dense, d_pose.ravel()))
-            new_rot, new_trans = rot.copy(), trans.copy()
-            new_rot[free] = axis_angle_to_matrix(d_pose[:, :3]) @ rot[free]
-            new_trans[free] = trans[free] + d_pose[:, 3:]
-            trial = evaluate(new_rot, new_trans, pts + d_point)
-            if np.all(trial[1][:, 2] > 0) and trial[-1] <= cost:
-                break
-            damping *= 10
-        else:
-            break  # no damped step lowers the cost: converged
-        improvement = (cost - trial[-1]) / max(cost, 1e-300)
-        rot, trans, pts = new_rot, new_trans, pts + d_point
-        rx, cam, err, prior, weights, cost = trial
-        damping = max(damping / 10, 1e-7)
-        if improvement < 1e-6:
-            break
-    return make_transform(rot, trans), pts
+    # x_scale="jac" preconditions LSMR by the column norms; its tolerance of 1e-5 is as loose as keeps the
+    # steps (and the poses on real footage) those of an exact solve, tighter only costs time.
+    x0 = np.concatenate([np.zeros(6 * f_count), points.ravel()])
+    result = least_squares(residuals, x0, jac=jacobian, method="trf", loss=_huber_irls,
+                           f_scale=options.refine_loss_scale, max_nfev=iterations, tr_solver="lsmr",
+                           tr_options={"atol": 1e-5, "btol": 1e-5}, ftol=1e-6, x_scale="jac")
+    rot, trans, pts, _ = unpack(result.x)
+    return make_transform(rot, trans), pts.copy()
 
 
 def _choose_tracks(visible: np.ndarray, count: int, seed: int, ids: np.ndarray, per_frame: int = 30) -> np.ndarray:
