@@ -265,7 +265,7 @@ def run(source: Annotated[Path, typer.Argument(help="Video file or folder of fra
         background: Background = "1,1,1", size: Size = None, camera: CameraMove = "static",
         camera_amount: CameraAmount = None, camera_path: CameraPath = None, ply_dir: PlyDir = None,
         target_mask: TargetMask = None, anchor: Anchor = "centroid", part_seed: PartSeed = None,
-             quiet: Quiet = False) -> None:
+        quiet: Quiet = False) -> None:
     """Extract the source's motion and transfer it onto the target in one go."""
     play = _playback(output, frames, speed, loop, reverse, rotation_scale, translation_scale, fps, background, size,
                      camera, camera_amount, camera_path, ply_dir, target_mask, anchor, part_seed)
