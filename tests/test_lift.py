@@ -90,7 +90,7 @@ def test_reference_view_reproduces_the_image():
     ref = img[..., :3] / 255.0
     inner = cv2.erode(inside.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
     mse = ((out[inner] - ref[inner]) ** 2).mean()
-    assert 10 * np.log10(1 / mse) > 30
+    assert 10 * np.log10(1 / mse) >= 35  # issue 4: masked PSNR >= 35 dB (2-pixel rim excluded); measured 47.5
 
 
 def test_depth_for_radius_scales_with_focal():
