@@ -27,8 +27,8 @@ from .source.depth import read_depths
 from .target.lift import LiftedTarget, LiftOptions, lift_image
 from .trajectory import Trajectory
 from .transfer.controls import retime, scale_motion
-from .transfer.parts import joint_offsets, labels_from_seeds, seeds_from_layout
-from .transfer.velocity import integrate, part_radii
+from .transfer.parts import labels_from_seeds, seeds_from_layout
+from .transfer.velocity import integrate
 
 __all__ = ["extract", "load_target", "relative_depth", "transfer", "fit_view", "render_frames", "render_video",
            "write_ply_frames", "side_by_side", "source_intrinsics", "DEFAULT_MAX_SIDE"]
@@ -147,10 +147,7 @@ def transfer(prior: SpatPrior, target: LiftedTarget, *, frames: int | None = Non
         labels = labels_from_seeds(target.gaussians.means, target.pixel_of, seeds)
     else:
         labels = np.zeros(len(target.gaussians), np.int32)  # one part, or no layout stored: the largest part
-    root, offsets = joint_offsets(prior) if anchor == "centroid" else (0, {})
-    cents, radii = part_radii(target.gaussians.means, labels, prior.num_parts)
-    joints = {k: cents[k] + offset * radii[k] for k, offset in offsets.items()}
-    return integrate(target.gaussians.means, labels, prior, anchor=anchor, joints=joints, root=root)
+    return integrate(target.gaussians.means, labels, prior, anchor=anchor)
 
 
 def fit_view(camera: Camera, trajectory: Trajectory, margin: float = 0.06, samples: int = 20000) -> Camera:

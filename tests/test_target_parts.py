@@ -43,28 +43,3 @@ def test_layout_seeds_land_at_the_same_relative_place():
     seeds = seeds_from_layout(source, target)
     assert seeds[0] == pytest.approx((29.5, 49.5), abs=0.6)
     assert seeds[1] == pytest.approx((69.5, 49.5), abs=0.6)
-
-
-def test_joint_of_a_hinge_is_found_and_kept_attached():
-    from marionette.synthetic import make_scene
-    from marionette.transfer.parts import joint_offsets
-    from marionette.transfer.velocity import integrate, part_radii
-
-    scene = make_scene("hinge", seed=0, num_frames=12, size=(160, 120))
-    prior = scene.ground_truth_prior()  # part 0 the body (static here), part 1 the lid
-    root, offsets = joint_offsets(prior)
-    assert root == 0 and set(offsets) == {1}
-    # The joint lies on the hinge axis: it stays put under the lid's motion.
-    joint = prior.centroids[1, 0] + offsets[1] * prior.radii[1]
-    moved = np.einsum("tij,j->ti", prior.poses[1, :, :3, :3], joint) + prior.poses[1, :, :3, 3]
-    assert np.abs(moved - joint).max() < 1e-4 * prior.radii[1]
-    # Integrated on the source's own points, the lid's joint stays where it was.
-    points = np.concatenate(scene.part_points)
-    labels = np.repeat([0, 1], [len(p) for p in scene.part_points])
-    cents, radii = part_radii(points, labels, 2)
-    target_joint = cents[1] + offsets[1] * radii[1]
-    traj = integrate(points, labels, prior, joints={1: target_joint}, root=0)
-    lid = traj.means[:, labels == 1].astype(np.float64)
-    nearest = np.argmin(np.linalg.norm(points[labels == 1] - target_joint, axis=1))
-    drift = np.linalg.norm(lid[:, nearest] - lid[0, nearest], axis=1).max()
-    assert drift < 0.05 * radii[1] + np.linalg.norm(points[labels == 1][nearest] - target_joint)

@@ -17,11 +17,9 @@ from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
 from ..errors import InputError
-from ..geometry import invert_transform, rotation_angle_deg
-from ..prior import SpatPrior
 from .metrics import knn_edges
 
-__all__ = ["seeds_from_layout", "labels_from_seeds", "boundary_band", "joint_offsets"]
+__all__ = ["seeds_from_layout", "labels_from_seeds", "boundary_band"]
 
 
 def _bbox(mask: np.ndarray) -> tuple[float, float, float, float]:
@@ -85,31 +83,3 @@ def boundary_band(means: np.ndarray, labels: np.ndarray, k: int = 8) -> np.ndarr
     band = np.zeros(len(means), bool)
     band[edges[across].ravel()] = True
     return band
-
-
-def joint_offsets(prior: SpatPrior, *, min_degrees: float = 5.0) -> tuple[int, dict[int, np.ndarray]]:
-    """The root part (the one that turns least) and, per part hinged on it, its joint relative to the part.
-
-    A joint point ``x`` moves alike with both parts: ``Q_t x = x`` for the
-    relative motion ``Q_t = (P^r_t)⁻¹ P^k_t``. Stacking ``(R^Q_t − I) x =
-    −t^Q_t`` over frames gives a least-squares problem whose solutions, for a
-    hinge, form its axis; a weak pull towards the part's centre picks the
-    axis point nearest it. The joint is returned as an offset from the
-    part's frame-0 centre in units of its radius, to be placed on the target
-    part the same way. Parts that turn less than ``min_degrees`` relative to
-    the root get none.
-    """
-    turn = rotation_angle_deg(prior.poses[..., :3, :3]).max(axis=1)  # (K,)
-    root = int(np.argmin(turn))
-    offsets = {}
-    for k in range(prior.num_parts):
-        rel = invert_transform(prior.poses[root]) @ prior.poses[k]
-        if k == root or rotation_angle_deg(rel[:, :3, :3]).max() < min_degrees:
-            continue
-        a = (rel[:, :3, :3] - np.eye(3)).reshape(-1, 3)
-        b = -rel[:, :3, 3].reshape(-1)
-        centre = prior.centroids[k, 0]
-        pull = 1e-2 * np.linalg.norm(a, axis=1).max()
-        x = np.linalg.lstsq(np.vstack([a, pull * np.eye(3)]), np.concatenate([b, pull * centre]), rcond=None)[0]
-        offsets[k] = (x - centre) / prior.radii[k]
-    return root, offsets

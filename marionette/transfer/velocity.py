@@ -60,8 +60,7 @@ def velocity_step(means: np.ndarray, rotation: np.ndarray, translation: np.ndarr
 
 
 def integrate(means: np.ndarray, labels: np.ndarray, prior: SpatPrior, *, anchor: str = "centroid",
-              translation_scale: np.ndarray | float | None = None, joints: dict[int, np.ndarray] | None = None,
-              root: int = 0) -> Trajectory:
+              translation_scale: np.ndarray | float | None = None) -> Trajectory:
     """Euler-integrate the prior's velocity field from rest positions.
 
     Parameters
@@ -75,13 +74,6 @@ def integrate(means: np.ndarray, labels: np.ndarray, prior: SpatPrior, *, anchor
         size) or "world" (the paper's literal Eq. 5).
     translation_scale : (P,) or float, optional
         Override of the target-over-source size ratio ``s``.
-    joints : dict part → (3,), optional
-        With ``anchor="centroid"``: a part listed here turns about its joint
-        with part ``root`` (a rest position) instead of its own centre, and the
-        joint is carried by the root's motion, so the two stay attached:
-        ``μ_{t+1} = R^k_t (μ_t − j_t) + j_{t+1}``, ``j_{t+1} = R^r_t (j_t − g^r_t) + g^r_{t+1}``.
-    root : int
-        The part the joints hang on.
 
     Returns
     -------
@@ -98,9 +90,6 @@ def integrate(means: np.ndarray, labels: np.ndarray, prior: SpatPrior, *, anchor
     scale = radii / prior.radii if translation_scale is None else np.broadcast_to(translation_scale, (p,))
     members = [np.nonzero(labels == k)[0] for k in range(p)]
 
-    pivots = {} if anchor == "world" else {k: np.asarray(j, np.float64) for k, j in (joints or {}).items()
-                                           if k != root and len(members[k])}
-    root_centre = cents[root] + scale[root] * (prior.centroids[root] - prior.centroids[root, :1])  # (T, 3)
     out = np.empty((t_count, len(means), 3), dtype=np.float32)
     rots = np.empty((t_count, p, 3, 3))
     out[0], rots[0] = means, np.eye(3)
@@ -116,10 +105,6 @@ def integrate(means: np.ndarray, labels: np.ndarray, prior: SpatPrior, *, anchor
                 v[idx] = velocity_step(mu[idx], r, d, cents[k], g_next)
                 cents[k] = g_next
             rots[t + 1, k] = r @ rots[t, k]
-        for k, j in pivots.items():  # parts hinged on the root turn about the joint the root carries
-            j_next = velocity_step(j[None], prior.rotations[root, t], None, root_centre[t], root_centre[t + 1])[0] + j
-            v[members[k]] = velocity_step(mu[members[k]], prior.rotations[k, t], None, j, j_next)
-            pivots[k] = j_next
         mu = mu + v  # Euler step, paper Eq. 6
         out[t + 1] = mu
     return Trajectory(out, rots.astype(np.float32), labels.astype(np.int32))
