@@ -138,6 +138,8 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
     options = ExtractOptions(parts=parts_value, smoothing=smooth)
     prior = pipeline.extract(source, masks=masks, depth=depth, focal=focal, max_side=max_side, start=start,
                              end=end, stride=stride, options=options, reporter=reporter)
+    if plot is not None:
+        plot_prior(prior, plot, title=Path(source).name)
     return prior
 
 
@@ -151,8 +153,6 @@ def extract(source: Annotated[Path, typer.Argument(help="Video file or folder of
     prior = _extract(source, masks, depth, focal, parts, start, end, stride, max_side, smooth, plot,
                      Reporter(quiet))
     write_prior(output, prior)
-    if plot is not None:
-        plot_prior(prior, plot, title=source.name)
 
 
 Frames = Annotated[Optional[int], typer.Option(help="Number of output frames (default: the source's length).")]
@@ -274,8 +274,6 @@ def run(source: Annotated[Path, typer.Argument(help="Video file or folder of fra
     reporter = Reporter(quiet)
     prior = _extract(source, masks, depth, focal, parts, start, end, stride, max_side, smooth, plot, reporter)
     _transfer_and_render(prior, target, output, play, reporter)
-    if plot is not None:
-        plot_prior(prior, plot, title=Path(source).name)
 
 
 @app.command("render")

@@ -151,10 +151,10 @@ class SpatPrior:
         d = self.centroids[:, 0].mean(axis=0)
         d = d / max(np.linalg.norm(d), 1e-12)
         axis = np.cross(d, [0.0, 0.0, 1.0])
-        angle = np.arctan2(np.linalg.norm(axis), d[2])
-        if np.linalg.norm(axis) < 1e-12:
+        sin = np.linalg.norm(axis)
+        if sin < 1e-12:
             return self
-        return self.in_view(axis_angle_to_matrix(axis / np.linalg.norm(axis) * angle))
+        return self.in_view(axis_angle_to_matrix(axis / sin * np.arctan2(sin, d[2])))
 
     def metadata_json(self) -> str:
         return json.dumps(self.metadata, sort_keys=True)

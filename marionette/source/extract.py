@@ -104,6 +104,7 @@ class _Part:
     poses: np.ndarray  # (T, 4, 4), camera-frame poses until the camera motion is removed
     centre: np.ndarray  # (3,) at frame 0
     radius: float
+    failed: dict[int, str]  # frames whose pose was interpolated, with the reason
 
 
 def _motion_px(tracks: Tracks) -> float:
@@ -289,7 +290,7 @@ def extract_prior(frames: np.ndarray, masks: np.ndarray | None, camera_K: np.nda
         groups = list(range(seg.num_parts)) + ([STATIC] if (pixel_labels == STATIC).any() else [])
         metadata["part_selection"] = {str(n): float(score) for n, score in seg.scores.items()}
 
-    parts, failed, rms = [], {}, []
+    parts, rms = [], []
     with stages("poses", "fitting poses", len(groups) * num_frames) as progress:
         for i, g in enumerate(groups):
             pixels = pixel_labels == g
@@ -299,17 +300,18 @@ def extract_prior(frames: np.ndarray, masks: np.ndarray | None, camera_K: np.nda
             def step(done: int, total: int, i=i) -> None:
                 progress(i * num_frames + round(done * num_frames / max(total, 1)), len(groups) * num_frames)
 
+            failed: dict[int, str] = {}
             if g == STATIC or members.sum() < options.rigid.min_points:
                 poses = np.tile(np.eye(4), (num_frames, 1, 1))  # static, or too few tracks to tell
             elif depths is not None:
                 poses = poses_from_depth(_subset(tracks, members), depths, k)
             else:
                 fit = fit_rigid(_subset(tracks, members), shape, options=options.rigid, progress=step)
-                poses = fit.poses
-                failed.update({f"{i}:{t}": r for t, r in fit.failed_frames.items()})
+                poses, failed = fit.poses, fit.failed_frames
                 rms.append(fit.reprojection_rms)
-            centre = carved_centroid(shape, masks, poses, np.arange(num_frames))
-            parts.append(_Part(g, pixels, poses, centre, shape.radius))
+            trusted = np.array([t for t in range(num_frames) if t not in failed])
+            centre = carved_centroid(shape, masks, poses, trusted)
+            parts.append(_Part(g, pixels, poses, centre, shape.radius, failed))
 
     parts.sort(key=lambda p: -p.pixels.sum())
     poses = np.stack([p.poses for p in parts])  # (K, T, 4, 4) in camera coordinates
@@ -329,12 +331,14 @@ def extract_prior(frames: np.ndarray, masks: np.ndarray | None, camera_K: np.nda
         track_parts[track_labels == part.group] = index
     extras.update(labels=labels, track_labels=track_parts)
 
+    failed = {f"{index}:{t}": reason for index, part in enumerate(parts) for t, reason in part.failed.items()}
     if failed:
         listed = ", ".join(list(failed)[:10])
         warnings.warn(f"pose estimation failed at {len(failed)} part-frames ({listed}{'…' if len(failed) > 10 else ''}); "
                       "their poses are interpolated (see metadata 'failed_frames')", stacklevel=2)
     stages.timings["total"] = time.perf_counter() - start
-    metadata.update(failed_frames=failed, no_motion=False, motion_px=float(motion), num_parts=len(parts),
+    metadata.update(failed_frames=failed, no_motion=False, motion_px=float(motion) if np.isfinite(motion) else None,
+                    num_parts=len(parts),
                     reprojection_rms_px=float(np.mean(rms)) if rms else None)
     return SpatPrior.from_poses(poses, centroids, np.array([p.radius for p in parts]), extras=extras,
                                 metadata=metadata, **common)

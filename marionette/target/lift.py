@@ -196,12 +196,12 @@ def lift_image(image: np.ndarray, *, mask: np.ndarray | None = None, camera: Cam
         raise InputError(f"target mask is {mask.shape[1]}x{mask.shape[0]}, image is {w_img}x{h_img}")
     if not mask.any():
         raise InputError("target mask is empty")
+    relief = inflate_silhouette(mask) * options.thickness  # (H, W) half-thickness in pixels
     if camera is None and options.relative_depth is not None:
         if not (np.isfinite(options.relative_depth) and options.relative_depth > 0):
             raise InputError(f"relative depth must be positive, got {options.relative_depth}")
         # RMS radius of the inflated volume in pixel units: lateral spread plus relief.
-        relief = inflate_silhouette(mask)[mask] * options.thickness
-        r3 = np.sqrt(pixel_radius(mask) ** 2 + float((relief ** 2).mean()))
+        r3 = np.sqrt(pixel_radius(mask) ** 2 + float((relief[mask] ** 2).mean()))
         camera = Camera.from_focal(w_img, h_img, options.relative_depth * r3)
     camera = camera or Camera.from_fov(w_img, h_img, options.fov_deg)
     if (camera.width, camera.height) != (w_img, h_img):
@@ -209,7 +209,7 @@ def lift_image(image: np.ndarray, *, mask: np.ndarray | None = None, camera: Cam
     f = 0.5 * (camera.fx + camera.fy)
     z0 = depth_for_radius(mask, f, options.radius)
     # Half-thickness in world units: pixels at z0 are z0 / f world units wide.
-    half = inflate_silhouette(mask) * (options.thickness * z0 / f)
+    half = relief * (z0 / f)
 
     s = options.stride
     vs, us = np.mgrid[s // 2:h_img:s, s // 2:w_img:s]
