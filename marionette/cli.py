@@ -6,34 +6,137 @@ bad input or usage, and writes its outputs atomically.
 
 from __future__ import annotations
 
+import contextlib
+import json
 import sys
+import time
+import tomllib
 import warnings
-from dataclasses import dataclass
+from collections.abc import Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated, Any, Optional
 
 import numpy as np
 import typer
 
 from . import pipeline
 from .camera import MAX_IMAGE_SIDE, Camera
+from .geometry import rotation_angle_deg
 from .errors import InputError
 from .io import read_ply, read_prior, write_image, write_prior
 from .io.atomic import check_output_dir, check_output_path
 from .plot import plot_prior
 from .progress import Reporter
 from .render import render
-from .render.camera_path import CAMERA_MOVES, camera_path, load_camera_path
+from .render.camera_path import CAMERA_MOVES, camera_path, check_camera_move, load_camera_path
 from .source import ExtractOptions
-from .transfer.controls import LOOPS
+from .transfer.controls import LOOPS, source_times
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   help="Transfer the rigid motion of a video onto a single image, via 3D Gaussians.")
 
 VIDEO_SUFFIXES = (".mp4", ".gif", "")
 
-Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bars or messages.")]
 Output = Annotated[Path, typer.Option("--output", "-o", help="Output file.")]
+
+
+def _load_config(ctx: typer.Context, value: Optional[Path]) -> Optional[Path]:
+    """``--config FILE``: option defaults from a TOML file; the command line wins.
+
+    Top-level keys are options (``max-side = 640`` or ``max_side = 640``);
+    a table named after a command (``[run]``) applies to that command only.
+    Keys that are options of other commands are ignored, unknown keys are an
+    error. Relative paths are taken from the file's folder.
+    """
+    if value is None or ctx.resilient_parsing:
+        return value
+    try:
+        table = tomllib.loads(Path(value).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError(f"config file {value} does not exist") from None
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
+        raise InputError(f"config file {value} is not valid TOML: {e}") from None
+    commands = {c.name: c for c in typer.main.get_command(app).commands.values()}
+    known = {p.name for c in commands.values() for p in c.params}
+    params = {p.name: p for p in ctx.command.params if p.name != "config"}
+    options: dict[str, Any] = {}
+    for key, item in table.items():
+        if key in commands and isinstance(item, dict):
+            if key == ctx.command.name:
+                sections = {k.replace("-", "_"): v for k, v in item.items()}
+                unknown = sorted(set(sections) - set(params))
+                if unknown:
+                    raise InputError(f"config file {value}: [{key}] has no option {unknown[0]!r}")
+                options.update(sections)
+            continue
+        name = key.replace("-", "_")
+        if name not in known or name == "config":
+            raise InputError(f"config file {value}: unknown option {key!r}")
+        if name in params:
+            options.setdefault(name, item)
+    for name, item in options.items():
+        if params[name].param_type_name == "argument":
+            raise InputError(f"config file {value}: {name!r} is an argument, give it on the command line")
+        if getattr(params[name].type_descriptor, "annotation", None) is Path and isinstance(item, str):
+            item = str(Path(value).parent / Path(item).expanduser())
+        options[name] = item
+    ctx.default_map = {**(ctx.default_map or {}), **options}
+    return value
+
+
+Config = Annotated[Optional[Path], typer.Option(
+    help="TOML file of option defaults ([COMMAND] tables allowed); the command line wins.",
+    is_eager=True, callback=_load_config)]
+Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bars or messages.")]
+Verbose = Annotated[bool, typer.Option("--verbose", "-v", help="Also print each stage's time and the figures.")]
+Json = Annotated[bool, typer.Option("--json", help="Print a JSON summary (outputs, timings, figures) on stdout.")]
+
+
+@dataclass
+class _Session:
+    """One command's reporter and the summary it prints at the end."""
+
+    command: str
+    reporter: Reporter
+    outputs: dict[str, str] = field(default_factory=dict)
+    figures: dict[str, Any] = field(default_factory=dict)
+
+    def output(self, kind: str, path: Path) -> None:
+        self.outputs[kind] = str(path)
+
+
+@contextlib.contextmanager
+def _session(command: str, quiet: bool, verbose: bool, as_json: bool) -> Iterator[_Session]:
+    """Run a command body; then print its summary (JSON on stdout, or lines on stderr)."""
+    if quiet and verbose:
+        raise InputError("--quiet and --verbose exclude each other")
+    session = _Session(command, Reporter(quiet=quiet, verbose=verbose))
+    start = time.perf_counter()
+    yield session
+    timings = {k: round(v, 3) for k, v in session.reporter.timings.items()}
+    timings["total"] = round(time.perf_counter() - start, 3)
+    if as_json:
+        summary = {"command": command, "outputs": session.outputs, "figures": session.figures, "timings": timings}
+        print(json.dumps(summary, indent=2, default=float))
+        return
+    for kind, path in session.outputs.items():
+        session.reporter.message(f"wrote {kind}: {path}")
+    for name, value in session.figures.items():
+        session.reporter.detail(f"  {name}: {value}")
+    session.reporter.detail(f"  total: {timings['total']:.2f} s")
+
+
+def _prior_figures(prior) -> dict[str, Any]:
+    """What a user wants to know about an extracted prior, JSON-ready."""
+    turned = rotation_angle_deg(prior.poses[:, :, :3, :3])  # (K, T)
+    path = np.linalg.norm(np.diff(prior.centroids, axis=1), axis=2).sum(axis=1) / prior.radii
+    return {"frames": prior.num_frames, "fps": round(float(prior.fps), 3), "parts": prior.num_parts,
+            "rotation_deg_at_end": [round(float(a), 2) for a in turned[:, -1]],
+            "max_rotation_deg": [round(float(a), 2) for a in turned.max(axis=1)],
+            "centre_path_in_radii": [round(float(d), 3) for d in path],
+            "camera_motion": prior.metadata.get("camera_motion"),
+            "tracks": prior.metadata.get("num_tracks")}
 
 
 def _parse_rgb(text: str) -> tuple[float, float, float]:
@@ -103,12 +206,15 @@ def _transfer_checks(frames: Optional[int], speed: float, fps: Optional[float]) 
 
 @app.command()
 def demo(output: Annotated[Path, typer.Option("--output", "-o", help="Output folder.")] = Path("marionette-demo"),
-         quiet: Quiet = False) -> None:
+         quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False, config: Config = None) -> None:
     """Run the whole method on a synthetic source and target; writes DIR/*.mp4."""
     from .demo import run_demo
 
     check_output_dir(output)
-    run_demo(output, reporter=Reporter(quiet))
+    with _session("demo", quiet, verbose, json_summary) as session:
+        for kind, path in run_demo(output, reporter=session.reporter).items():
+            session.output(kind, path)
+        session.figures["source"] = _prior_figures(read_prior(session.outputs["prior"]))
 
 
 Masks = Annotated[Optional[Path], typer.Option(help="Folder of per-frame mask images (default: found automatically).")]
@@ -124,7 +230,7 @@ Plot = Annotated[Optional[Path], typer.Option(help="Also draw each part's rotati
 
 
 def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, stride: int, max_side: int,
-             smooth: float, plot, reporter: Reporter):
+             smooth: float, plot, session: _Session):
     """Shared by ``extract`` and ``run``: check the options, extract, draw the plot."""
     parts_value = _parse_parts(parts)
     if not 16 <= max_side <= MAX_IMAGE_SIDE:
@@ -137,9 +243,11 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
         check_output_path(plot)
     options = ExtractOptions(parts=parts_value, smoothing=smooth)
     prior = pipeline.extract(source, masks=masks, depth=depth, focal=focal, max_side=max_side, start=start,
-                             end=end, stride=stride, options=options, reporter=reporter)
+                             end=end, stride=stride, options=options, reporter=session.reporter)
+    session.figures["source"] = _prior_figures(prior)
     if plot is not None:
         plot_prior(prior, plot, title=Path(source).name)
+        session.output("plot", plot)
     return prior
 
 
@@ -147,12 +255,14 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
 def extract(source: Annotated[Path, typer.Argument(help="Video file or folder of frames.")],
             output: Output, masks: Masks = None, depth: Depth = None, focal: Focal = None, parts: Parts = "1",
             start: Start = 0, end: End = None, stride: Stride = 1, max_side: MaxSide = pipeline.DEFAULT_MAX_SIDE,
-            smooth: Smooth = 1.0, plot: Plot = None, quiet: Quiet = False) -> None:
+            smooth: Smooth = 1.0, plot: Plot = None, quiet: Quiet = False, verbose: Verbose = False,
+            json_summary: Json = False, config: Config = None) -> None:
     """Extract the SpaT prior (per-part rigid motion) from a source video."""
     check_output_path(output)
-    prior = _extract(source, masks, depth, focal, parts, start, end, stride, max_side, smooth, plot,
-                     Reporter(quiet))
-    write_prior(output, prior)
+    with _session("extract", quiet, verbose, json_summary) as session:
+        prior = _extract(source, masks, depth, focal, parts, start, end, stride, max_side, smooth, plot, session)
+        write_prior(output, prior)
+        session.output("prior", output)
 
 
 Frames = Annotated[Optional[int], typer.Option(help="Number of output frames (default: the source's length).")]
@@ -171,6 +281,8 @@ PartSeed = Annotated[Optional[list[str]], typer.Option(help="Seed of a part on t
 Anchor = Annotated[str, typer.Option(help="Turn each part about its own centre ('centroid') or about the source's world origin as the paper does ('world').")]
 TargetMask = Annotated[Optional[Path], typer.Option(help="Image marking the target object (default: alpha, else found automatically).")]
 PlyDir = Annotated[Optional[Path], typer.Option(help="Also write each frame's Gaussians as DIR/00000.ply ….")]
+Preview = Annotated[Optional[Path], typer.Option(help="Also write a small looping GIF preview of the result.")]
+SideBySide = Annotated[Optional[Path], typer.Option(help="Also write the source beside the result (.mp4 or .gif).")]
 
 
 @dataclass(frozen=True)
@@ -193,10 +305,11 @@ class _Playback:
     target_mask: Path | None
     anchor: str
     part_seeds: dict[int, tuple[float, float]] | None
+    preview: Path | None
 
 
 def _playback(output: Path, frames, speed, loop, reverse, rotation_scale, translation_scale, fps, background, size,
-              camera, camera_amount, camera_path, ply_dir, target_mask, anchor, part_seed) -> _Playback:
+              camera, camera_amount, camera_path, ply_dir, target_mask, anchor, part_seed, preview) -> _Playback:
     """Check every playback option (before any work starts) and the output paths."""
     _transfer_checks(frames, speed, fps)
     if loop not in LOOPS:
@@ -206,11 +319,16 @@ def _playback(output: Path, frames, speed, loop, reverse, rotation_scale, transl
             raise InputError(f"{name} must be a number within -100..100, got {value}")
     if camera not in CAMERA_MOVES:
         raise InputError(f"--camera must be one of {', '.join(CAMERA_MOVES)}, got {camera!r}")
+    check_camera_move(camera, camera_amount)
     if camera_path is not None and camera != "static":
         raise InputError("--camera-path and --camera orbit/dolly exclude each other")
     if camera_path is not None and not camera_path.is_file():
         raise InputError(f"camera path {camera_path} does not exist")
     _video_output(output)
+    if preview is not None and preview.suffix.lower() != ".gif":
+        raise InputError(f"--preview must name a .gif file, got {preview.name!r}")
+    if preview is not None:
+        check_output_path(preview)
     if ply_dir is not None:
         check_output_dir(ply_dir)
     if anchor not in ("centroid", "world"):
@@ -219,24 +337,39 @@ def _playback(output: Path, frames, speed, loop, reverse, rotation_scale, transl
         raise InputError(f"target mask {target_mask} does not exist")
     return _Playback(frames, speed, loop, reverse, rotation_scale, translation_scale, fps, _parse_rgb(background),
                      _parse_size(size), camera, camera_amount, camera_path, ply_dir, target_mask, anchor,
-                     _parse_part_seeds(part_seed))
+                     _parse_part_seeds(part_seed), preview)
 
 
-def _transfer_and_render(prior, target: Path, output: Path, play: _Playback, reporter: Reporter) -> None:
-    lifted = pipeline.load_target(target, size=play.size, mask=play.target_mask, prior=prior)
-    trajectory = pipeline.transfer(prior, lifted, frames=play.frames, speed=play.speed, loop=play.loop,
-                                   reverse=play.reverse, rotation_scale=play.rotation_scale,
-                                   translation_scale=play.translation_scale, anchor=play.anchor,
-                                   part_seeds=play.part_seeds)
+def _transfer_and_render(prior, target: Path, output: Path, play: _Playback, session: _Session):
+    """Lift, transfer, render and write the outputs the options ask for; the trajectory."""
+    if play.part_seeds:
+        pipeline.check_part_seeds(prior, play.part_seeds)
+    with session.reporter.stage("lifting target", 1) as progress:
+        lifted = pipeline.load_target(target, size=play.size, mask=play.target_mask, prior=prior)
+        progress(1, 1)
+    with session.reporter.stage("transfer", 1) as progress:
+        trajectory = pipeline.transfer(prior, lifted, frames=play.frames, speed=play.speed, loop=play.loop,
+                                       reverse=play.reverse, rotation_scale=play.rotation_scale,
+                                       translation_scale=play.translation_scale, anchor=play.anchor,
+                                       part_seeds=play.part_seeds)
+        progress(1, 1)
     if play.camera_path is not None:
         cameras = load_camera_path(play.camera_path, trajectory.num_frames)
     else:
         cameras = camera_path(pipeline.fit_view(lifted.camera, trajectory), lifted.gaussians.means.mean(axis=0),
                               trajectory.num_frames, play.camera, play.camera_amount)
-    pipeline.render_video(output, lifted.gaussians, trajectory, cameras, fps=play.fps or prior.fps,
-                          background=play.background, reporter=reporter)
+    pipeline.render_video(output, lifted, trajectory, cameras, fps=play.fps or prior.fps,
+                          background=play.background, reporter=session.reporter)
+    session.output("video", output)
+    session.figures["target"] = {"gaussians": len(lifted.gaussians), "frames": trajectory.num_frames,
+                                 "size": [cameras[0].width, cameras[0].height], "fps": play.fps or prior.fps}
+    if play.preview is not None:
+        pipeline.write_preview(play.preview, output, fps=play.fps or prior.fps)
+        session.output("preview", play.preview)
     if play.ply_dir is not None:
         pipeline.write_ply_frames(play.ply_dir, lifted.gaussians, trajectory)
+        session.output("ply_dir", play.ply_dir)
+    return trajectory
 
 
 @app.command()
@@ -247,11 +380,13 @@ def transfer(prior: Annotated[Path, typer.Argument(help="SpaT prior .npz.")],
              background: Background = "1,1,1", size: Size = None, camera: CameraMove = "static",
              camera_amount: CameraAmount = None, camera_path: CameraPath = None, ply_dir: PlyDir = None,
              target_mask: TargetMask = None, anchor: Anchor = "centroid", part_seed: PartSeed = None,
-             quiet: Quiet = False) -> None:
+             preview: Preview = None, quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False,
+             config: Config = None) -> None:
     """Apply a SpaT prior to a target image or .ply and render the video."""
     play = _playback(output, frames, speed, loop, reverse, rotation_scale, translation_scale, fps, background, size,
-                     camera, camera_amount, camera_path, ply_dir, target_mask, anchor, part_seed)
-    _transfer_and_render(read_prior(prior), target, output, play, Reporter(quiet))
+                     camera, camera_amount, camera_path, ply_dir, target_mask, anchor, part_seed, preview)
+    with _session("transfer", quiet, verbose, json_summary) as session:
+        _transfer_and_render(read_prior(prior), target, output, play, session)
 
 
 @app.command()
@@ -265,30 +400,44 @@ def run(source: Annotated[Path, typer.Argument(help="Video file or folder of fra
         background: Background = "1,1,1", size: Size = None, camera: CameraMove = "static",
         camera_amount: CameraAmount = None, camera_path: CameraPath = None, ply_dir: PlyDir = None,
         target_mask: TargetMask = None, anchor: Anchor = "centroid", part_seed: PartSeed = None,
-        quiet: Quiet = False) -> None:
+        preview: Preview = None, side_by_side: SideBySide = None, quiet: Quiet = False, verbose: Verbose = False,
+        json_summary: Json = False, config: Config = None) -> None:
     """Extract the source's motion and transfer it onto the target in one go."""
     play = _playback(output, frames, speed, loop, reverse, rotation_scale, translation_scale, fps, background, size,
-                     camera, camera_amount, camera_path, ply_dir, target_mask, anchor, part_seed)
+                     camera, camera_amount, camera_path, ply_dir, target_mask, anchor, part_seed, preview)
     if not Path(target).exists():
         raise InputError(f"target {target} does not exist")
-    reporter = Reporter(quiet)
-    prior = _extract(source, masks, depth, focal, parts, start, end, stride, max_side, smooth, plot, reporter)
-    _transfer_and_render(prior, target, output, play, reporter)
+    if side_by_side is not None:
+        _video_output(side_by_side)
+    with _session("run", quiet, verbose, json_summary) as session:
+        prior = _extract(source, masks, depth, focal, parts, start, end, stride, max_side, smooth, plot, session)
+        trajectory = _transfer_and_render(prior, target, output, play, session)
+        if side_by_side is not None:
+            times = source_times(trajectory.num_frames, prior.num_frames - 1, speed=speed, loop=loop, reverse=reverse)
+            pipeline.write_side_by_side(side_by_side, source, output, times, fps=play.fps or prior.fps,
+                                        max_side=max_side, start=start, end=end, stride=stride)
+            session.output("side_by_side", side_by_side)
 
 
 @app.command("render")
 def render_cmd(scene: Annotated[Path, typer.Argument(help="3DGS .ply file.")],
                camera: Annotated[Path, typer.Option(help="CAMERA.json (DESIGN.md contract).")],
-               output: Output, background: Background = "1,1,1") -> None:
+               output: Output, background: Background = "1,1,1", quiet: Quiet = False, verbose: Verbose = False,
+               json_summary: Json = False, config: Config = None) -> None:
     """Render a 3DGS .ply from a camera to a PNG."""
     bg = _parse_rgb(background)
     if output.suffix.lower() not in (".png", ".jpg", ".jpeg"):
         raise InputError(f"unsupported image output {output.name!r}: use .png or .jpg")
     check_output_path(output)
-    cam = Camera.load(camera)
-    gaussians = read_ply(scene)
-    out = render(gaussians, cam, bg)
-    write_image(output, (np.clip(out.image, 0, 1) * 255 + 0.5).astype(np.uint8))
+    with _session("render", quiet, verbose, json_summary) as session:
+        cam = Camera.load(camera)
+        gaussians = read_ply(scene)
+        with session.reporter.stage("rendering", 1) as progress:
+            out = render(gaussians, cam, bg)
+            progress(1, 1)
+        write_image(output, (np.clip(out.image, 0, 1) * 255 + 0.5).astype(np.uint8))
+        session.output("image", output)
+        session.figures["gaussians"] = len(gaussians)
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:

@@ -19,6 +19,7 @@ from .errors import InputError
 from .gaussians import Gaussians
 from .io import read_image, read_mask, read_masks, read_ply, read_video, write_ply, write_video
 from .io.atomic import check_output_dir
+from .io.video import DEFAULT_MAX_PIXELS, open_video
 from .prior import SpatPrior
 from .progress import Reporter
 from .render import render
@@ -30,8 +31,9 @@ from .transfer.controls import retime, scale_motion
 from .transfer.parts import labels_from_seeds, seeds_from_layout
 from .transfer.velocity import integrate
 
-__all__ = ["extract", "load_target", "relative_depth", "transfer", "fit_view", "render_frames", "render_video",
-           "write_ply_frames", "side_by_side", "source_intrinsics", "DEFAULT_MAX_SIDE"]
+__all__ = ["extract", "load_target", "relative_depth", "check_part_seeds", "transfer", "fit_view", "render_frames",
+           "render_video", "write_ply_frames", "side_by_side", "write_side_by_side", "write_preview", "source_intrinsics",
+           "DEFAULT_MAX_SIDE"]
 
 #: Long side above which source frames are downscaled (intrinsics follow).
 DEFAULT_MAX_SIDE = 960
@@ -46,21 +48,24 @@ def source_intrinsics(width: int, height: int, focal: float | None = None) -> np
 
 
 def extract(source: str | Path, *, masks: str | Path | None = None, depth: str | Path | None = None,
-            focal: float | None = None, max_side: int = DEFAULT_MAX_SIDE, start: int = 0, end: int | None = None,
-            stride: int = 1, options: ExtractOptions = ExtractOptions(),
+            focal: float | None = None, max_side: int = DEFAULT_MAX_SIDE, max_pixels: int | None = DEFAULT_MAX_PIXELS,
+            start: int = 0, end: int | None = None, stride: int = 1, options: ExtractOptions = ExtractOptions(),
             reporter: Reporter | None = None) -> SpatPrior:
     """Source video (file or frame folder) → SpaT prior.
 
     ``masks`` and ``depth`` are folders with one image per source frame (or
     per selected frame); without masks the object is found automatically.
     ``start``, ``end``, ``stride`` select frames; frames are downscaled to a
-    long side of ``max_side``. ``focal`` is in pixels of the original video;
-    it is scaled with the frames.
+    long side of ``max_side``, and further (with a warning) when all frames
+    together hold more than ``max_pixels`` pixels. ``focal`` is in pixels of
+    the original video; it is scaled with the frames. Frames are decoded on
+    demand and masks kept packed, so memory stays bounded for long videos.
     """
     reporter = reporter or Reporter(quiet=True)
-    video = read_video(source, max_side=max_side, start=start, end=end, stride=stride)
+    video = open_video(source, max_side=max_side, max_pixels=max_pixels, start=start, end=end, stride=stride)
     t, h, w = video.frames.shape[:3]
-    mask_stack = None if masks is None else read_masks(masks, count=t, size=(w, h), indices=video.indices)
+    mask_stack = (None if masks is None
+                  else read_masks(masks, count=t, size=(w, h), indices=video.indices, packed=True))
     depth_stack = None if depth is None else read_depths(depth, count=t, size=(w, h), indices=video.indices)
     k = source_intrinsics(w, h, None if focal is None else focal * video.scale)
     return extract_prior(video.frames, mask_stack, k, video.fps, depths=depth_stack, options=options,
@@ -119,6 +124,13 @@ def load_target(target: str | Path, *, size: tuple[int, int] | None = None, mask
     return lift_image(image, mask=object_pixels, options=options)
 
 
+def check_part_seeds(prior: SpatPrior, part_seeds: dict[int, tuple[float, float]]) -> None:
+    """Raise :class:`InputError` unless every seeded part is one of the prior's."""
+    bad = [k for k in part_seeds if not 0 <= k < prior.num_parts]
+    if bad:
+        raise InputError(f"part seed for part {bad[0]}, but the prior has parts 0..{prior.num_parts - 1}")
+
+
 def transfer(prior: SpatPrior, target: LiftedTarget, *, frames: int | None = None, speed: float = 1.0,
              loop: str = "hold", reverse: bool = False, rotation_scale: float = 1.0,
              translation_scale: float = 1.0, anchor: str = "centroid",
@@ -138,9 +150,7 @@ def transfer(prior: SpatPrior, target: LiftedTarget, *, frames: int | None = Non
     if anchor == "centroid":
         prior = prior.aimed_at_object()
     if part_seeds:
-        bad = [k for k in part_seeds if not 0 <= k < prior.num_parts]
-        if bad:
-            raise InputError(f"part seed for part {bad[0]}, but the prior has parts 0..{prior.num_parts - 1}")
+        check_part_seeds(prior, part_seeds)
         labels = labels_from_seeds(target.gaussians.means, target.pixel_of, part_seeds)
     elif prior.num_parts > 1 and np.ndim(prior.extras.get("labels")) == 2:
         seeds = seeds_from_layout(np.asarray(prior.extras["labels"]), target.mask)
@@ -173,11 +183,23 @@ def render_frames(gaussians: Gaussians, trajectory: Trajectory, camera: Camera |
         yield (np.clip(image, 0, 1) * 255 + 0.5).astype(np.uint8)
 
 
-def render_video(path: str | Path, gaussians: Gaussians, trajectory: Trajectory, camera: Camera | Sequence[Camera],
-                 *, fps: float, background: tuple[float, float, float] = (1.0, 1.0, 1.0),
-                 reporter: Reporter | None = None) -> None:
-    """Render the trajectory and write it (MP4, GIF or a PNG folder, by suffix)."""
+def render_video(path: str | Path, target: LiftedTarget | Gaussians, trajectory: Trajectory,
+                 camera: Camera | Sequence[Camera] | None = None, *, fps: float,
+                 background: tuple[float, float, float] = (1.0, 1.0, 1.0), reporter: Reporter | None = None) -> None:
+    """Render the trajectory and write it (MP4, GIF or a PNG folder, by suffix).
+
+    ``target`` is a lifted target (its reference camera, zoomed out to keep
+    the motion in frame, is the default ``camera``) or bare Gaussians, which
+    need a ``camera`` (one, or one per frame).
+    """
     reporter = reporter or Reporter(quiet=True)
+    if isinstance(target, LiftedTarget):
+        gaussians = target.gaussians
+        camera = camera if camera is not None else fit_view(target.camera, trajectory)
+    elif camera is None:
+        raise InputError("render_video needs a camera for bare Gaussians")
+    else:
+        gaussians = target
     with reporter.stage("rendering", trajectory.num_frames) as progress:
         write_video(path, render_frames(gaussians, trajectory, camera, background, progress), fps)
 
@@ -190,6 +212,28 @@ def write_ply_frames(folder: str | Path, gaussians: Gaussians, trajectory: Traje
     for t, path in enumerate(paths):
         write_ply(path, trajectory.frame(gaussians, t))
     return paths
+
+
+def write_side_by_side(path: str | Path, source: str | Path, result: str | Path, source_times: np.ndarray, *,
+                       fps: float, max_side: int = DEFAULT_MAX_SIDE, start: int = 0, end: int | None = None,
+                       stride: int = 1) -> None:
+    """Write the source video beside a result video, frame-aligned.
+
+    ``source`` frames are selected as for :func:`extract`; result frame ``t``
+    is shown beside source frame ``source_times[t]`` (rounded), (T_out,).
+    """
+    left = read_video(source, max_side=max_side, start=start, end=end, stride=stride).frames
+    right = read_video(result).frames
+    index = np.clip(np.rint(source_times).astype(int), 0, len(left) - 1)
+    write_video(path, side_by_side([left[i] for i in index], right), fps)
+
+
+def write_preview(path: str | Path, video: str | Path, *, fps: float, max_side: int = 320,
+                  max_frames: int = 120) -> None:
+    """Write a small looping GIF of a video: long side ``max_side``, at most ``max_frames`` frames."""
+    frames = read_video(video, max_side=max_side).frames
+    step = -(-len(frames) // max_frames)
+    write_video(path, frames[::step], fps / step)
 
 
 def side_by_side(left: np.ndarray, right: list[np.ndarray] | np.ndarray, *, height: int | None = None) -> Iterator[np.ndarray]:

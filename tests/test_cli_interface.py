@@ -1,0 +1,98 @@
+"""Command-line conveniences: --json summaries, --verbose, --config TOML files, preview and side-by-side outputs."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from marionette.cli import main
+from marionette.io import read_video, write_video
+from marionette.synthetic import make_scene
+
+from test_cli import one_error_line, prior_file, target_png  # noqa: F401  (fixtures)
+
+
+def test_json_summary_lists_outputs_timings_and_figures(tmp_path, prior_file, target_png, capsys):
+    out, preview = tmp_path / "out.mp4", tmp_path / "out.gif"
+    assert main(["transfer", str(prior_file), str(target_png), "-o", str(out), "-q", "--json",
+                 "--frames", "6", "--preview", str(preview)]) == 0
+    summary = json.loads(capsys.readouterr().out)  # stdout holds the JSON and nothing else
+    assert summary["command"] == "transfer"
+    assert summary["outputs"] == {"video": str(out), "preview": str(preview)}
+    assert summary["figures"]["target"]["frames"] == 6 and summary["figures"]["target"]["gaussians"] > 100
+    assert {"lifting target", "transfer", "rendering", "total"} <= set(summary["timings"])
+    assert summary["timings"]["total"] >= summary["timings"]["rendering"] > 0
+    gif = read_video(preview)
+    assert len(gif.frames) == 6 and max(gif.frames.shape[1:3]) <= 320
+
+
+def test_verbose_prints_stage_times_and_quiet_prints_nothing(tmp_path, prior_file, target_png, capsys):
+    args = ["transfer", str(prior_file), str(target_png), "-o", str(tmp_path / "o.mp4"), "--frames", "3"]
+    assert main(args + ["--verbose"]) == 0
+    err = capsys.readouterr().err
+    assert "rendering" in err and "wrote video" in err and "gaussians" in err
+    assert main(args + ["--quiet"]) == 0
+    assert capsys.readouterr().err == ""
+    assert main(args + ["--quiet", "--verbose"]) == 2
+    assert "exclude each other" in one_error_line(capsys)
+
+
+def test_config_file_gives_defaults_and_the_command_line_wins(tmp_path, prior_file, target_png):
+    (tmp_path / "sub").mkdir()
+    config = tmp_path / "sub" / "look.toml"
+    config.write_text('frames = 5\nspeed = 0.5\nparts = "auto"  # an extract option: ignored by transfer\n'
+                      '[transfer]\npreview = "p.gif"\nfps = 10\n')
+    out = tmp_path / "a.mp4"
+    assert main(["transfer", str(prior_file), str(target_png), "-o", str(out), "-q", "--config", str(config)]) == 0
+    video = read_video(out)
+    assert len(video.frames) == 5 and video.fps == pytest.approx(10)
+    assert (tmp_path / "sub" / "p.gif").is_file()  # relative to the config file's folder
+    out = tmp_path / "b.mp4"
+    assert main(["transfer", str(prior_file), str(target_png), "-o", str(out), "-q", "--config", str(config),
+                 "--frames", "7", "--fps", "12"]) == 0
+    video = read_video(out)
+    assert len(video.frames) == 7 and video.fps == pytest.approx(12)
+
+
+@pytest.mark.parametrize("text, words", [
+    ("framez = 3\n", "unknown option 'framez'"),
+    ("[transfer]\nmasks = 'm'\n", "[transfer] has no option 'masks'"),
+    ("frames = [\n", "not valid TOML"),
+    ("speed = 'fast'\n", "speed"),
+])
+def test_bad_config_is_one_error_line(tmp_path, prior_file, target_png, capsys, text, words):
+    config = tmp_path / "bad.toml"
+    config.write_text(text)
+    out = tmp_path / "o.mp4"
+    assert main(["transfer", str(prior_file), str(target_png), "-o", str(out), "--config", str(config)]) == 2
+    assert words in one_error_line(capsys)
+    assert not out.exists()
+
+
+def test_missing_config_is_one_error_line(tmp_path, prior_file, target_png, capsys):
+    assert main(["transfer", str(prior_file), str(target_png), "-o", str(tmp_path / "o.mp4"),
+                 "--config", str(tmp_path / "none.toml")]) == 2
+    assert "does not exist" in one_error_line(capsys)
+
+
+def test_run_writes_a_frame_aligned_side_by_side(tmp_path, target_png, capsys):
+    scene = make_scene("inplane", num_frames=8, size=(96, 72), seed=2)
+    frames, masks = tmp_path / "frames", tmp_path / "masks"
+    write_video(frames, scene.frames, scene.fps)
+    masks.mkdir()
+    for i, m in enumerate(scene.masks):
+        cv2.imwrite(str(masks / f"{i:05d}.png"), m.astype(np.uint8) * 255)
+    out, sbs = tmp_path / "r.mp4", tmp_path / "sbs.mp4"
+    assert main(["run", str(frames), str(target_png), "--masks", str(masks), "-o", str(out), "-q", "--json",
+                 "--frames", "12", "--loop", "pingpong", "--side-by-side", str(sbs)]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["figures"]["source"]["frames"] == 8 and summary["figures"]["source"]["parts"] == 1
+    assert set(summary["outputs"]) == {"video", "side_by_side"}
+    both = read_video(sbs).frames
+    assert len(both) == 12
+    # ping-pong over 8 source frames: output frame 10 shows source frame 4 on the left
+    left = cv2.resize(scene.frames[4], (both.shape[2] - both.shape[1], both.shape[1]))
+    other = cv2.resize(scene.frames[7], (both.shape[2] - both.shape[1], both.shape[1]))
+    shown = both[10, :, :left.shape[1]].astype(int)
+    assert np.abs(shown - left).mean() < 0.5 * np.abs(shown - other).mean()
