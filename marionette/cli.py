@@ -24,12 +24,12 @@ from . import pipeline
 from .camera import MAX_IMAGE_SIDE, Camera
 from .geometry import rotation_angle_deg
 from .errors import InputError
-from .io import read_ply, read_prior, write_image, write_prior
-from .io.atomic import check_output_dir, check_output_path
+from .io import read_ply, read_prior, write_image, write_prior, write_splat_animation
+from .io.atomic import check_output_dir, check_output_folder, check_output_path
 from .plot import plot_prior
 from .progress import Reporter
 from .render import render
-from .render.camera_path import CAMERA_MOVES, camera_path, check_camera_move, load_camera_path
+from .render.camera_path import CAMERA_MOVES, check_camera_move
 from .source import ExtractOptions
 from .transfer.controls import LOOPS, source_times
 
@@ -281,6 +281,7 @@ PartSeed = Annotated[Optional[list[str]], typer.Option(help="Seed of a part on t
 Anchor = Annotated[str, typer.Option(help="Turn each part about its own centre ('centroid') or about the source's world origin as the paper does ('world').")]
 TargetMask = Annotated[Optional[Path], typer.Option(help="Image marking the target object (default: alpha, else found automatically).")]
 PlyDir = Annotated[Optional[Path], typer.Option(help="Also write each frame's Gaussians as DIR/00000.ply ….")]
+Splats = Annotated[Optional[Path], typer.Option(help="Also write the animated Gaussians as one .npz for `marionette view`.")]
 Preview = Annotated[Optional[Path], typer.Option(help="Also write a small looping GIF preview of the result.")]
 SideBySide = Annotated[Optional[Path], typer.Option(help="Also write the source beside the result (.mp4 or .gif).")]
 
@@ -306,10 +307,12 @@ class _Playback:
     anchor: str
     part_seeds: dict[int, tuple[float, float]] | None
     preview: Path | None
+    splats: Path | None
 
 
 def _playback(output: Path, frames, speed, loop, reverse, rotation_scale, translation_scale, fps, background, size,
-              camera, camera_amount, camera_path, ply_dir, target_mask, anchor, part_seed, preview) -> _Playback:
+              camera, camera_amount, camera_path, ply_dir, target_mask, anchor, part_seed, preview,
+              splats) -> _Playback:
     """Check every playback option (before any work starts) and the output paths."""
     _transfer_checks(frames, speed, fps)
     if loop not in LOOPS:
@@ -329,15 +332,19 @@ def _playback(output: Path, frames, speed, loop, reverse, rotation_scale, transl
         raise InputError(f"--preview must name a .gif file, got {preview.name!r}")
     if preview is not None:
         check_output_path(preview)
+    if splats is not None and splats.suffix.lower() != ".npz":
+        raise InputError(f"--splats must name a .npz file, got {splats.name!r}")
+    if splats is not None:
+        check_output_path(splats)
     if ply_dir is not None:
-        check_output_dir(ply_dir)
+        check_output_folder(ply_dir, pipeline.PLY_FRAME_NAME)
     if anchor not in ("centroid", "world"):
         raise InputError(f"--anchor must be 'centroid' or 'world', got {anchor!r}")
     if target_mask is not None and not target_mask.is_file():
         raise InputError(f"target mask {target_mask} does not exist")
     return _Playback(frames, speed, loop, reverse, rotation_scale, translation_scale, fps, _parse_rgb(background),
                      _parse_size(size), camera, camera_amount, camera_path, ply_dir, target_mask, anchor,
-                     _parse_part_seeds(part_seed), preview)
+                     _parse_part_seeds(part_seed), preview, splats)
 
 
 def _transfer_and_render(prior, target: Path, output: Path, play: _Playback, session: _Session):
@@ -353,11 +360,7 @@ def _transfer_and_render(prior, target: Path, output: Path, play: _Playback, ses
                                        translation_scale=play.translation_scale, anchor=play.anchor,
                                        part_seeds=play.part_seeds)
         progress(1, 1)
-    if play.camera_path is not None:
-        cameras = load_camera_path(play.camera_path, trajectory.num_frames)
-    else:
-        cameras = camera_path(pipeline.fit_view(lifted.camera, trajectory), lifted.gaussians.means.mean(axis=0),
-                              trajectory.num_frames, play.camera, play.camera_amount)
+    cameras = pipeline.output_cameras(lifted, trajectory, play.camera, play.camera_amount, play.camera_path)
     pipeline.render_video(output, lifted, trajectory, cameras, fps=play.fps or prior.fps,
                           background=play.background, reporter=session.reporter)
     session.output("video", output)
@@ -369,6 +372,9 @@ def _transfer_and_render(prior, target: Path, output: Path, play: _Playback, ses
     if play.ply_dir is not None:
         pipeline.write_ply_frames(play.ply_dir, lifted.gaussians, trajectory)
         session.output("ply_dir", play.ply_dir)
+    if play.splats is not None:
+        write_splat_animation(play.splats, lifted.gaussians, trajectory, play.fps or prior.fps)
+        session.output("splats", play.splats)
     return trajectory
 
 
@@ -380,11 +386,11 @@ def transfer(prior: Annotated[Path, typer.Argument(help="SpaT prior .npz.")],
              background: Background = "1,1,1", size: Size = None, camera: CameraMove = "static",
              camera_amount: CameraAmount = None, camera_path: CameraPath = None, ply_dir: PlyDir = None,
              target_mask: TargetMask = None, anchor: Anchor = "centroid", part_seed: PartSeed = None,
-             preview: Preview = None, quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False,
-             config: Config = None) -> None:
+             preview: Preview = None, splats: Splats = None, quiet: Quiet = False, verbose: Verbose = False,
+             json_summary: Json = False, config: Config = None) -> None:
     """Apply a SpaT prior to a target image or .ply and render the video."""
     play = _playback(output, frames, speed, loop, reverse, rotation_scale, translation_scale, fps, background, size,
-                     camera, camera_amount, camera_path, ply_dir, target_mask, anchor, part_seed, preview)
+                     camera, camera_amount, camera_path, ply_dir, target_mask, anchor, part_seed, preview, splats)
     with _session("transfer", quiet, verbose, json_summary) as session:
         _transfer_and_render(read_prior(prior), target, output, play, session)
 
@@ -400,11 +406,11 @@ def run(source: Annotated[Path, typer.Argument(help="Video file or folder of fra
         background: Background = "1,1,1", size: Size = None, camera: CameraMove = "static",
         camera_amount: CameraAmount = None, camera_path: CameraPath = None, ply_dir: PlyDir = None,
         target_mask: TargetMask = None, anchor: Anchor = "centroid", part_seed: PartSeed = None,
-        preview: Preview = None, side_by_side: SideBySide = None, quiet: Quiet = False, verbose: Verbose = False,
-        json_summary: Json = False, config: Config = None) -> None:
+        preview: Preview = None, splats: Splats = None, side_by_side: SideBySide = None, quiet: Quiet = False,
+        verbose: Verbose = False, json_summary: Json = False, config: Config = None) -> None:
     """Extract the source's motion and transfer it onto the target in one go."""
     play = _playback(output, frames, speed, loop, reverse, rotation_scale, translation_scale, fps, background, size,
-                     camera, camera_amount, camera_path, ply_dir, target_mask, anchor, part_seed, preview)
+                     camera, camera_amount, camera_path, ply_dir, target_mask, anchor, part_seed, preview, splats)
     if not Path(target).exists():
         raise InputError(f"target {target} does not exist")
     if side_by_side is not None:
@@ -417,6 +423,39 @@ def run(source: Annotated[Path, typer.Argument(help="Video file or folder of fra
             pipeline.write_side_by_side(side_by_side, source, output, times, fps=play.fps or prior.fps,
                                         max_side=max_side, start=start, end=end, stride=stride)
             session.output("side_by_side", side_by_side)
+
+
+@app.command()
+def batch(jobs: Annotated[Path, typer.Argument(help="Job file (TOML; the format is in marionette.batch's docstring).")],
+          scheduler: Annotated[Optional[str], typer.Option(
+              help="Address of a running Dask scheduler, e.g. tcp://10.0.0.5:8786 (default: a local cluster).")] = None,
+          workers: Annotated[int, typer.Option(help="Worker processes of the local cluster.")] = 2,
+          output: Annotated[Optional[Path], typer.Option(
+              "--output", "-o", help="Output folder (default: the job file's 'output').")] = None,
+          quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False, config: Config = None) -> None:
+    """Run many source × target jobs on Dask: one prior per source, finished jobs skipped, a results table."""
+    from .batch import run_batch
+
+    with _session("batch", quiet, verbose, json_summary) as session:
+        rows = run_batch(jobs, scheduler=scheduler, workers=workers, reporter=session.reporter, output=output)
+        session.output("results", rows[0].output.parent / "results.md")
+        session.figures["jobs"] = {s: sum(r.status == s for r in rows) for s in ("ran", "skipped", "failed")}
+    if any(row.status == "failed" for row in rows):
+        raise typer.Exit(1)
+
+
+@app.command()
+def view(result: Annotated[Path, typer.Argument(
+             help="Animated splats (.npz from --splats), a --ply-dir folder, or one .ply.")],
+         host: Annotated[str, typer.Option(
+             help="Address to listen on; 0.0.0.0 lets other machines connect.")] = "127.0.0.1",
+         port: Annotated[int, typer.Option(help="Port (the next free one if taken; 0: any free port).")] = 8080,
+         fps: Annotated[Optional[float], typer.Option(help="Playback rate (default: the result's own).")] = None,
+         config: Config = None) -> None:
+    """Play animated Gaussians in the browser: time slider, play/pause, free camera."""
+    from .viewer import run as run_viewer  # viser loads only for this command
+
+    run_viewer(result, host, port, fps=fps)
 
 
 @app.command("render")
@@ -449,12 +488,11 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point: run the CLI, turning bad input into ``error: …`` and exit code 2."""
     warnings.showwarning = _show_warning
     try:
-        app(args=argv, standalone_mode=False, prog_name="marionette")
+        code = app(args=argv, standalone_mode=False, prog_name="marionette")
     except typer.Exit as e:
-        return e.exit_code
+        code = e.exit_code
     except typer.Abort:
-        print("error: interrupted", file=sys.stderr)
-        return 130
+        code = 130
     except typer.TyperException as e:  # typer >= 0.29 vendors click; usage errors land here
         print(f"error: {e.format_message().splitlines()[0]}", file=sys.stderr)
         return 2
@@ -462,9 +500,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {str(e).splitlines()[0]}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
+        code = 130
+    if code == 130:  # typer turns Ctrl-C into exit code 130
         print("error: interrupted", file=sys.stderr)
-        return 130
-    return 0
+    return code if isinstance(code, int) else 0
 
 
 if __name__ == "__main__":

@@ -18,11 +18,12 @@ from .camera import Camera, focal_from_fov
 from .errors import InputError
 from .gaussians import Gaussians
 from .io import read_image, read_mask, read_masks, read_ply, read_video, write_ply, write_video
-from .io.atomic import check_output_dir
+from .io.atomic import atomic_folder
 from .io.video import DEFAULT_MAX_PIXELS, open_video
 from .prior import SpatPrior
 from .progress import Reporter
 from .render import render
+from .render.camera_path import camera_path, load_camera_path
 from .source import ExtractOptions, extract_prior
 from .source.depth import read_depths
 from .target.lift import LiftedTarget, LiftOptions, lift_image
@@ -31,9 +32,12 @@ from .transfer.controls import retime, scale_motion
 from .transfer.parts import labels_from_seeds, seeds_from_layout
 from .transfer.velocity import integrate
 
-__all__ = ["extract", "load_target", "relative_depth", "check_part_seeds", "transfer", "fit_view", "render_frames",
-           "render_video", "write_ply_frames", "side_by_side", "write_side_by_side", "write_preview", "source_intrinsics",
-           "DEFAULT_MAX_SIDE"]
+__all__ = ["extract", "load_target", "relative_depth", "check_part_seeds", "transfer", "output_cameras", "fit_view",
+           "render_frames", "render_video", "write_ply_frames", "side_by_side", "write_side_by_side", "write_preview",
+           "source_intrinsics", "DEFAULT_MAX_SIDE", "PLY_FRAME_NAME"]
+
+#: Names of the per-frame files of :func:`write_ply_frames` (a folder of only these may be replaced).
+PLY_FRAME_NAME = r"\d{5,}\.ply"
 
 #: Long side above which source frames are downscaled (intrinsics follow).
 DEFAULT_MAX_SIDE = 960
@@ -66,7 +70,8 @@ def extract(source: str | Path, *, masks: str | Path | None = None, depth: str |
     t, h, w = video.frames.shape[:3]
     mask_stack = (None if masks is None
                   else read_masks(masks, count=t, size=(w, h), indices=video.indices, packed=True))
-    depth_stack = None if depth is None else read_depths(depth, count=t, size=(w, h), indices=video.indices)
+    depth_stack = None if depth is None else read_depths(depth, count=t, size=(w, h), indices=video.indices,
+                                                         lazy=True)
     k = source_intrinsics(w, h, None if focal is None else focal * video.scale)
     return extract_prior(video.frames, mask_stack, k, video.fps, depths=depth_stack, options=options,
                          reporter=reporter)
@@ -160,6 +165,19 @@ def transfer(prior: SpatPrior, target: LiftedTarget, *, frames: int | None = Non
     return integrate(target.gaussians.means, labels, prior, anchor=anchor)
 
 
+def output_cameras(target: LiftedTarget, trajectory: Trajectory, move: str = "static", amount: float | None = None,
+                   path: str | Path | None = None) -> list[Camera]:
+    """One camera per output frame: from a camera-path JSON file, or the framed reference view with a ``move``.
+
+    ``move`` is static, orbit or dolly with its ``amount`` (see
+    :func:`~marionette.render.camera_path.camera_path`).
+    """
+    if path is not None:
+        return load_camera_path(path, trajectory.num_frames)
+    return camera_path(fit_view(target.camera, trajectory), target.gaussians.means.mean(axis=0),
+                       trajectory.num_frames, move, amount)
+
+
 def fit_view(camera: Camera, trajectory: Trajectory, margin: float = 0.06, samples: int = 20000) -> Camera:
     """The reference camera zoomed out and re-centred so the whole trajectory stays in frame.
 
@@ -205,13 +223,15 @@ def render_video(path: str | Path, target: LiftedTarget | Gaussians, trajectory:
 
 
 def write_ply_frames(folder: str | Path, gaussians: Gaussians, trajectory: Trajectory) -> list[Path]:
-    """Write each frame's moved Gaussians as ``folder/00000.ply`` … (3DGS layout); the paths written."""
-    folder = check_output_dir(folder)
-    folder.mkdir(exist_ok=True)
-    paths = [folder / f"{t:05d}.ply" for t in range(trajectory.num_frames)]
-    for t, path in enumerate(paths):
-        write_ply(path, trajectory.frame(gaussians, t))
-    return paths
+    """Write each frame's moved Gaussians as ``folder/00000.ply`` … (3DGS layout); the paths written.
+
+    The folder appears complete or not at all (see :func:`~marionette.io.atomic.atomic_folder`).
+    """
+    folder = Path(folder)
+    with atomic_folder(folder, PLY_FRAME_NAME) as tmp:
+        for t in range(trajectory.num_frames):
+            write_ply(tmp / f"{t:05d}.ply", trajectory.frame(gaussians, t))
+    return [folder / f"{t:05d}.ply" for t in range(trajectory.num_frames)]
 
 
 def write_side_by_side(path: str | Path, source: str | Path, result: str | Path, source_times: np.ndarray, *,

@@ -96,3 +96,18 @@ def test_run_writes_a_frame_aligned_side_by_side(tmp_path, target_png, capsys):
     other = cv2.resize(scene.frames[7], (both.shape[2] - both.shape[1], both.shape[1]))
     shown = both[10, :, :left.shape[1]].astype(int)
     assert np.abs(shown - left).mean() < 0.5 * np.abs(shown - other).mean()
+
+
+def test_splats_export_holds_every_frame_for_the_viewer(tmp_path, prior_file, target_png, capsys):
+    from marionette.io import read_splat_animation
+
+    out, splats = tmp_path / "o.mp4", tmp_path / "o.npz"
+    assert main(["transfer", str(prior_file), str(target_png), "-o", str(out), "-q", "--frames", "4",
+                 "--splats", str(splats)]) == 0
+    animation = read_splat_animation(splats)
+    assert animation.num_frames == 4 and len(animation.gaussians) > 100
+    assert not np.allclose(animation.frame(0).means, animation.frame(3).means, atol=1e-4)
+    assert main(["view", str(tmp_path / "missing.npz")]) == 2
+    assert "missing.npz" in one_error_line(capsys)
+    assert main(["transfer", str(prior_file), str(target_png), "-o", str(out), "--splats", str(tmp_path / "s.ply")]) == 2
+    assert "--splats" in one_error_line(capsys)
