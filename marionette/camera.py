@@ -16,10 +16,12 @@ import numpy as np
 
 from .errors import InputError
 
-__all__ = ["Camera", "focal_from_fov", "MAX_IMAGE_SIDE"]
+__all__ = ["Camera", "focal_from_fov", "read_camera_json", "MAX_IMAGE_SIDE"]
 
 #: Largest image side any command accepts (a guard against absurd sizes).
 MAX_IMAGE_SIDE = 8192
+#: Largest camera JSON file read (a camera path of 100000 frames takes about 40 MiB).
+MAX_JSON_BYTES = 64 << 20
 
 
 def focal_from_fov(width: int, fov_deg: float = 60.0) -> float:
@@ -55,9 +57,15 @@ class Camera:
             raise InputError("camera: intrinsics or pose contain NaN or infinite values")
         if not (k[0, 0] > 0 and k[1, 1] > 0):
             raise InputError(f"camera: focal lengths must be positive, got fx={k[0, 0]}, fy={k[1, 1]}")
+        if np.any(k[2] != [0, 0, 1]) or k[1, 0] != 0:
+            raise InputError(f"camera: K must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]], got {k.tolist()}")
         r = w2c[:3, :3]
-        if not np.allclose(r @ r.T, np.eye(3), atol=1e-4) or np.linalg.det(r) < 0:
+        with np.errstate(over="ignore", invalid="ignore"):  # huge entries: inf products, caught by allclose
+            proper = np.allclose(r @ r.T, np.eye(3), atol=1e-4) and np.linalg.det(r) > 0
+        if not proper:
             raise InputError("camera: world_to_camera rotation is not a proper rotation")
+        if np.any(w2c[3] != [0, 0, 0, 1]):
+            raise InputError(f"camera: world_to_camera must end with the row [0, 0, 0, 1], got {w2c[3].tolist()}")
         for name in ("width", "height"):
             v = getattr(self, name)
             if int(v) != v or not 1 <= int(v) <= MAX_IMAGE_SIDE:
@@ -167,26 +175,56 @@ class Camera:
             if key not in d:
                 raise InputError(f"camera: missing key '{key}'")
         for key in ("width", "height", "fx", "fy", "cx", "cy"):
-            if isinstance(d[key], bool) or not isinstance(d[key], (int, float)) or not math.isfinite(d[key]):
-                raise InputError(f"camera: '{key}' must be a finite number, got {d[key]!r}")
-        try:
-            w2c = np.array(d["world_to_camera"], dtype=np.float64)
-        except (TypeError, ValueError):
-            raise InputError("camera: 'world_to_camera' must be a 4x4 list of numbers") from None
-        if w2c.shape != (4, 4):
-            raise InputError(f"camera: 'world_to_camera' must be 4x4, got shape {w2c.shape}")
+            if not _is_finite_number(d[key]):
+                raise InputError(f"camera: '{key}' must be a finite number, got {_short(d[key])}")
+        rows = d["world_to_camera"]
+        if not (isinstance(rows, list) and len(rows) == 4
+                and all(isinstance(row, list) and len(row) == 4 and all(map(_is_finite_number, row)) for row in rows)):
+            raise InputError(f"camera: 'world_to_camera' must be a 4x4 list of finite numbers, got {_short(rows)}")
+        w2c = np.array(rows, dtype=np.float64)
         k = np.array([[d["fx"], 0, d["cx"]], [0, d["fy"], d["cy"]], [0, 0, 1]], dtype=np.float64)
         return Camera(k, w2c, d["width"], d["height"])
 
     @staticmethod
     def load(path: str | Path) -> "Camera":
         """Read a ``CAMERA.json`` file."""
-        try:
-            text = Path(path).read_text()
-        except (OSError, UnicodeDecodeError) as e:
-            raise InputError(f"cannot read camera file {path}: {e.strerror if isinstance(e, OSError) else e}") from None
-        try:
-            d = json.loads(text)
-        except json.JSONDecodeError as e:
-            raise InputError(f"camera file {path} is not valid JSON: {e.msg} at line {e.lineno}") from None
-        return Camera.from_dict(d)
+        return Camera.from_dict(read_camera_json(path, f"camera file {path}"))
+
+
+def read_camera_json(path: str | Path, what: str) -> object:
+    """The parsed content of a camera JSON file; ``what`` names the file in errors.
+
+    Every failure (missing, unreadable, too large, not UTF-8, bad syntax,
+    nested too deeply) is an :class:`InputError`.
+    """
+    path = Path(path)
+    try:
+        if path.stat().st_size > MAX_JSON_BYTES:
+            raise InputError(f"{what} is larger than {MAX_JSON_BYTES >> 20} MiB")
+        text = path.read_text(encoding="utf-8")
+    except OSError as e:
+        raise InputError(f"cannot read {what}: {e.strerror}") from None
+    except UnicodeDecodeError:
+        raise InputError(f"{what} is not UTF-8 text") from None
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as e:
+        raise InputError(f"{what} is not valid JSON: {e.msg} at line {e.lineno}") from None
+    except RecursionError:
+        raise InputError(f"{what} is not valid JSON: nested too deeply") from None
+
+
+def _is_finite_number(value: object) -> bool:
+    """A JSON number (not a bool) that is finite as a float64."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:  # an integer beyond float range
+        return False
+
+
+def _short(value: object, limit: int = 60) -> str:
+    """``repr`` cut to ``limit`` characters, for error messages."""
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit - 1] + "…"

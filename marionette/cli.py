@@ -29,9 +29,9 @@ from .io.atomic import check_output_dir, check_output_folder, check_output_path
 from .plot import plot_prior
 from .progress import Reporter
 from .render import render
-from .render.camera_path import CAMERA_MOVES, check_camera_move
+from .render.camera_path import CAMERA_MOVES, check_camera_move, load_camera_path
 from .source import ExtractOptions
-from .transfer.controls import LOOPS, source_times
+from .transfer.controls import LOOPS, output_length, source_times
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   help="Transfer the rigid motion of a video onto a single image, via 3D Gaussians.")
@@ -310,7 +310,7 @@ class _Playback:
     splats: Path | None
 
 
-def _playback(output: Path, frames, speed, loop, reverse, rotation_scale, translation_scale, fps, background, size,
+def _playback(output: Path, target: Path, frames, speed, loop, reverse, rotation_scale, translation_scale, fps, background, size,
               camera, camera_amount, camera_path, ply_dir, target_mask, anchor, part_seed, preview,
               splats) -> _Playback:
     """Check every playback option (before any work starts) and the output paths."""
@@ -325,8 +325,8 @@ def _playback(output: Path, frames, speed, loop, reverse, rotation_scale, transl
     check_camera_move(camera, camera_amount)
     if camera_path is not None and camera != "static":
         raise InputError("--camera-path and --camera orbit/dolly exclude each other")
-    if camera_path is not None and not camera_path.is_file():
-        raise InputError(f"camera path {camera_path} does not exist")
+    if camera_path is not None:
+        load_camera_path(camera_path, None)  # the frame count is checked once it is known
     _video_output(output)
     if preview is not None and preview.suffix.lower() != ".gif":
         raise InputError(f"--preview must name a .gif file, got {preview.name!r}")
@@ -342,6 +342,7 @@ def _playback(output: Path, frames, speed, loop, reverse, rotation_scale, transl
         raise InputError(f"--anchor must be 'centroid' or 'world', got {anchor!r}")
     if target_mask is not None and not target_mask.is_file():
         raise InputError(f"target mask {target_mask} does not exist")
+    pipeline.check_target(target, target_mask)
     return _Playback(frames, speed, loop, reverse, rotation_scale, translation_scale, fps, _parse_rgb(background),
                      _parse_size(size), camera, camera_amount, camera_path, ply_dir, target_mask, anchor,
                      _parse_part_seeds(part_seed), preview, splats)
@@ -351,6 +352,8 @@ def _transfer_and_render(prior, target: Path, output: Path, play: _Playback, ses
     """Lift, transfer, render and write the outputs the options ask for; the trajectory."""
     if play.part_seeds:
         pipeline.check_part_seeds(prior, play.part_seeds)
+    path_cameras = (None if play.camera_path is None
+                    else load_camera_path(play.camera_path, output_length(prior.num_frames, play.speed, play.frames)))
     with session.reporter.stage("lifting target", 1) as progress:
         lifted = pipeline.load_target(target, size=play.size, mask=play.target_mask, prior=prior)
         progress(1, 1)
@@ -360,7 +363,7 @@ def _transfer_and_render(prior, target: Path, output: Path, play: _Playback, ses
                                        translation_scale=play.translation_scale, anchor=play.anchor,
                                        part_seeds=play.part_seeds)
         progress(1, 1)
-    cameras = pipeline.output_cameras(lifted, trajectory, play.camera, play.camera_amount, play.camera_path)
+    cameras = path_cameras or pipeline.output_cameras(lifted, trajectory, play.camera, play.camera_amount)
     pipeline.render_video(output, lifted, trajectory, cameras, fps=play.fps or prior.fps,
                           background=play.background, reporter=session.reporter)
     session.output("video", output)
@@ -389,7 +392,7 @@ def transfer(prior: Annotated[Path, typer.Argument(help="SpaT prior .npz.")],
              preview: Preview = None, splats: Splats = None, quiet: Quiet = False, verbose: Verbose = False,
              json_summary: Json = False, config: Config = None) -> None:
     """Apply a SpaT prior to a target image or .ply and render the video."""
-    play = _playback(output, frames, speed, loop, reverse, rotation_scale, translation_scale, fps, background, size,
+    play = _playback(output, target, frames, speed, loop, reverse, rotation_scale, translation_scale, fps, background, size,
                      camera, camera_amount, camera_path, ply_dir, target_mask, anchor, part_seed, preview, splats)
     with _session("transfer", quiet, verbose, json_summary) as session:
         _transfer_and_render(read_prior(prior), target, output, play, session)
@@ -409,10 +412,8 @@ def run(source: Annotated[Path, typer.Argument(help="Video file or folder of fra
         preview: Preview = None, splats: Splats = None, side_by_side: SideBySide = None, quiet: Quiet = False,
         verbose: Verbose = False, json_summary: Json = False, config: Config = None) -> None:
     """Extract the source's motion and transfer it onto the target in one go."""
-    play = _playback(output, frames, speed, loop, reverse, rotation_scale, translation_scale, fps, background, size,
+    play = _playback(output, target, frames, speed, loop, reverse, rotation_scale, translation_scale, fps, background, size,
                      camera, camera_amount, camera_path, ply_dir, target_mask, anchor, part_seed, preview, splats)
-    if not Path(target).exists():
-        raise InputError(f"target {target} does not exist")
     if side_by_side is not None:
         _video_output(side_by_side)
     with _session("run", quiet, verbose, json_summary) as session:

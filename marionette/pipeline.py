@@ -26,13 +26,13 @@ from .render import render
 from .render.camera_path import camera_path, load_camera_path
 from .source import ExtractOptions, extract_prior
 from .source.depth import read_depths
-from .target.lift import LiftedTarget, LiftOptions, lift_image
+from .target.lift import LiftedTarget, LiftOptions, alpha_mask, lift_image
 from .trajectory import Trajectory
 from .transfer.controls import retime, scale_motion
 from .transfer.parts import labels_from_seeds, seeds_from_layout
 from .transfer.velocity import integrate
 
-__all__ = ["extract", "load_target", "relative_depth", "check_part_seeds", "transfer", "output_cameras", "fit_view",
+__all__ = ["extract", "load_target", "relative_depth", "check_target", "check_part_seeds", "transfer", "output_cameras", "fit_view",
            "render_frames", "render_video", "write_ply_frames", "side_by_side", "write_side_by_side", "write_preview",
            "source_intrinsics", "DEFAULT_MAX_SIDE", "PLY_FRAME_NAME"]
 
@@ -120,13 +120,36 @@ def load_target(target: str | Path, *, size: tuple[int, int] | None = None, mask
         mask = np.zeros((height, width), bool)
         mask[pix[z > 0, 1], pix[z > 0, 0]] = True
         return LiftedTarget(g, cam, mask, pix)
-    image = read_image(path)
+    image, object_pixels = _read_target_image(path, mask)
     if size is not None and (image.shape[1], image.shape[0]) != tuple(size):
         image = cv2.resize(image, tuple(size), interpolation=cv2.INTER_AREA)
+        if object_pixels is not None:
+            object_pixels = cv2.resize(object_pixels.view(np.uint8), tuple(size), interpolation=cv2.INTER_NEAREST) > 0
     if prior is not None and options.relative_depth is None:
         options = replace(options, relative_depth=relative_depth(prior))
-    object_pixels = None if mask is None else read_mask(mask, size=(image.shape[1], image.shape[0]))
     return lift_image(image, mask=object_pixels, options=options)
+
+
+def _read_target_image(path: Path, mask: str | Path | None) -> tuple[np.ndarray, np.ndarray | None]:
+    """(H, W, 3|4) uint8 target image and its (H, W) bool mask file's content, if given; checked."""
+    image = read_image(path)
+    if mask is None:
+        alpha_mask(image)  # a fully transparent image is refused here
+        return image, None
+    object_pixels = read_mask(mask)
+    if object_pixels.shape != image.shape[:2]:
+        raise InputError(f"target mask {Path(mask).name} is {object_pixels.shape[1]}x{object_pixels.shape[0]} "
+                         f"but the target image is {image.shape[1]}x{image.shape[0]}")
+    return image, object_pixels
+
+
+def check_target(target: str | Path, mask: str | Path | None = None) -> None:
+    """Reject a target (and its mask file) that cannot be lifted, before any long work starts."""
+    path = Path(target)
+    if path.suffix.lower() == ".ply":
+        read_ply(path)
+    else:
+        _read_target_image(path, mask)
 
 
 def check_part_seeds(prior: SpatPrior, part_seeds: dict[int, tuple[float, float]]) -> None:

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .camera import MAX_IMAGE_SIDE
 from .errors import InputError
 from .geometry import axis_angle_to_matrix, invert_transform
 
@@ -86,13 +87,24 @@ class SpatPrior:
         object.__setattr__(self, "fps", float(self.fps))
         if np.any(self.image_size <= 0):
             raise InputError(f"prior key 'image_size' must be positive, got {self.image_size.tolist()}")
+        if np.any(self.image_size > MAX_IMAGE_SIDE):
+            raise InputError(f"prior key 'image_size' must be at most {MAX_IMAGE_SIDE}, got {self.image_size.tolist()}")
+        cam_k = self.intrinsics
+        if not (cam_k[0, 0] > 0 and cam_k[1, 1] > 0 and cam_k[1, 0] == 0 and np.array_equal(cam_k[2], [0, 0, 1])):
+            raise InputError("prior key 'intrinsics' must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0")
         if np.any(self.radii <= 0):
             raise InputError("prior key 'radii' must be positive")
-        r = self.rotations
-        if not np.allclose(r @ np.swapaxes(r, -1, -2), np.eye(3), atol=1e-5) or np.any(np.linalg.det(r) < 0):
-            raise InputError("prior key 'rotations' holds matrices that are not rotations")
+        for name, rotations in (("rotations", self.rotations), ("poses", self.poses[..., :3, :3])):
+            if not _are_rotations(rotations):
+                raise InputError(f"prior key '{name}' holds matrices that are not rotations")
+        if not np.allclose(self.poses[..., 3, :], [0, 0, 0, 1], atol=1e-9):
+            raise InputError("prior key 'poses' holds matrices whose last row is not [0, 0, 0, 1]")
         if not np.allclose(self.poses[:, 0], np.eye(4), atol=1e-9):
             raise InputError("prior key 'poses' must start with identity at frame 0")
+        labels = self.extras.get("labels")
+        if labels is not None and not _is_layout(np.asarray(labels), k):
+            raise InputError(f"prior extra 'labels' must be a 2-D integer array with parts 0..{k - 1} "
+                             "(negative off the object)")
 
     @property
     def num_parts(self) -> int:
@@ -158,3 +170,15 @@ class SpatPrior:
 
     def metadata_json(self) -> str:
         return json.dumps(self.metadata, sort_keys=True)
+
+
+def _are_rotations(r: np.ndarray) -> bool:
+    """Whether every (..., 3, 3) matrix of finite ``r`` is a proper rotation (to 1e-5)."""
+    with np.errstate(over="ignore", invalid="ignore"):  # huge entries overflow to inf: not rotations
+        return bool(np.allclose(r @ np.swapaxes(r, -1, -2), np.eye(3), atol=1e-5) and np.all(np.linalg.det(r) > 0))
+
+
+def _is_layout(labels: np.ndarray, parts: int) -> bool:
+    """Whether ``labels`` is an (H, W) integer part layout of ``parts`` parts with some object pixel."""
+    return (labels.ndim == 2 and labels.dtype.kind in "iu" and labels.size > 0
+            and labels.max() >= 0 and labels.max() < parts)

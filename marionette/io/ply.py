@@ -121,9 +121,16 @@ def read_ply(path: str | Path) -> Gaussians:
     dc = stack(["f_dc_0", "f_dc_1", "f_dc_2"])  # (N, 3)
     rest = stack([f"f_rest_{i}" for i in range(3 * (c - 1))]).reshape(n, 3, c - 1)  # (N, 3, C-1)
     sh = np.concatenate([dc[:, None, :], rest.transpose(0, 2, 1)], axis=1)  # (N, C, 3)
+    quats = stack(["rot_0", "rot_1", "rot_2", "rot_3"])  # (N, 4)
+    with np.errstate(over="ignore", under="ignore"):  # float32 norms, as the quaternions are normalised later
+        norms = np.linalg.norm(quats, axis=1)
+    bad = np.flatnonzero(~(np.isfinite(norms) & (norms > 0)))
+    if bad.size:
+        raise InputError(f"{path}: the rotation rot_0..rot_3 of vertex {bad[0]} is zero or out of range "
+                         "(its length is not a positive float32)")
     return Gaussians(
         means=stack(["x", "y", "z"]),
-        quats=stack(["rot_0", "rot_1", "rot_2", "rot_3"]),
+        quats=quats,
         log_scales=stack(["scale_0", "scale_1", "scale_2"]),
         opacity_logits=column("opacity"),
         sh=sh,
@@ -136,8 +143,11 @@ def _check_header(path: Path) -> None:
     plyfile allocates the declared element count up front (for ASCII files and
     list properties), so an absurd count must be caught before it reads.
     """
-    with open(path, "rb") as f:
-        head = f.read(_MAX_HEADER_BYTES)
+    try:
+        with open(path, "rb") as f:
+            head = f.read(_MAX_HEADER_BYTES)
+    except OSError as exc:
+        raise InputError(f"cannot read {path}: {exc.strerror}") from None
     if not head.startswith(b"ply"):
         raise InputError(f"{path} is not a PLY file (it does not start with 'ply')")
     end = head.find(b"end_header")

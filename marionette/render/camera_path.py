@@ -2,16 +2,15 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
-from ..camera import Camera
+from ..camera import Camera, read_camera_json
 from ..errors import InputError
 from ..geometry import axis_angle_to_matrix, make_transform
 
-__all__ = ["camera_path", "load_camera_path", "CAMERA_MOVES"]
+__all__ = ["CAMERA_MOVES", "camera_path", "check_camera_move", "load_camera_path"]
 
 #: Built-in camera moves and their default amount: orbit, degrees turned about the
 #: object's vertical axis over the clip; dolly, share of the distance to the
@@ -28,12 +27,7 @@ def camera_path(camera: Camera, centre: np.ndarray, frames: int, move: str = "st
     in and out; ``dolly`` moves it along its line of sight towards ``centre``
     by ``amount`` (default 0.3) of the distance.
     """
-    if move not in CAMERA_MOVES:
-        raise InputError(f"camera must be one of {', '.join(CAMERA_MOVES)}, got {move!r}")
-    amount = CAMERA_MOVES[move] if amount is None else float(amount)
-    if not np.isfinite(amount) or (move == "dolly" and not 0 <= amount < 1):
-        raise InputError(f"camera amount for {move} must be {'in [0, 1)' if move == 'dolly' else 'finite'}, "
-                         f"got {amount}")
+    amount = check_camera_move(move, amount)
     if move == "static":
         return [camera] * frames
     eased = 0.5 - 0.5 * np.cos(np.linspace(0.0, np.pi, frames))  # 0 → 1, slow at both ends
@@ -50,22 +44,39 @@ def camera_path(camera: Camera, centre: np.ndarray, frames: int, move: str = "st
     return path
 
 
-def load_camera_path(path: str | Path, frames: int) -> list[Camera]:
-    """Cameras from a JSON list of CAMERA.json objects: one per output frame, or one for all."""
+def check_camera_move(move: str, amount: float | None = None) -> float:
+    """Check a built-in camera move and its amount (None: the default); the amount to use."""
+    if move not in CAMERA_MOVES:
+        raise InputError(f"camera must be one of {', '.join(CAMERA_MOVES)}, got {move!r}")
+    amount = CAMERA_MOVES[move] if amount is None else float(amount)
+    if not np.isfinite(amount) or (move == "dolly" and not 0 <= amount < 1):
+        raise InputError(f"camera amount for {move} must be {'in [0, 1)' if move == 'dolly' else 'finite'}, "
+                         f"got {amount}")
+    return amount
+
+
+def load_camera_path(path: str | Path, frames: int | None) -> list[Camera]:
+    """Cameras from a JSON list of CAMERA.json objects: one per output frame, or one for all.
+
+    ``frames`` None checks the file and returns its cameras, however many
+    (to validate it before the frame count is known).
+    """
     path = Path(path)
     if not path.is_file():
         raise InputError(f"camera path {path} does not exist")
-    try:
-        items = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"camera path {path} is not readable JSON: {exc}") from None
+    items = read_camera_json(path, f"camera path {path}")
     if not isinstance(items, list) or not items:
         raise InputError(f"camera path {path} must hold a non-empty JSON list of cameras")
-    cameras = [Camera.from_dict(item) for item in items]
-    if len(cameras) == 1:
+    if frames is not None and len(items) not in (1, frames):
+        raise InputError(f"camera path {path} has {len(items)} cameras for {frames} frames")
+    cameras = []
+    for i, item in enumerate(items):
+        try:
+            cameras.append(Camera.from_dict(item))
+        except InputError as exc:
+            raise InputError(f"camera path {path}, camera {i}: {str(exc).removeprefix('camera: ')}") from None
+    if len(cameras) == 1 and frames is not None:
         return cameras * frames
-    if len(cameras) != frames:
-        raise InputError(f"camera path {path} has {len(cameras)} cameras for {frames} frames")
     if len({(c.width, c.height) for c in cameras}) != 1:
         raise InputError(f"cameras in {path} differ in image size")
     return cameras

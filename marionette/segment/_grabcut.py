@@ -141,6 +141,7 @@ def grabcut_mask(image: np.ndarray, *, rect: tuple[int, int, int, int] | None = 
     crop = np.ascontiguousarray(labels[y0:y1, x0:x1])
     bgd, fgd = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
     bgr = cv2.cvtColor(np.ascontiguousarray(image[y0:y1, x0:x1]), cv2.COLOR_RGB2BGR)
+    cv2.setRNGSeed(0)  # GrabCut seeds its colour models (k-means++) from OpenCV's global RNG: make it repeatable
     cv2.grabCut(bgr, crop, None, bgd, fgd, iterations, cv2.GC_INIT_WITH_MASK)
     out = np.zeros((H, W), bool)
     out[y0:y1, x0:x1] = (crop == cv2.GC_FGD) | (crop == cv2.GC_PR_FGD)

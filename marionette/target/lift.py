@@ -21,7 +21,7 @@ from ..errors import InputError
 from ..segment import grabcut_mask, salient_mask
 from ..gaussians import Gaussians
 
-__all__ = ["LiftOptions", "LiftedTarget", "lift_image", "object_mask", "inflate_silhouette",
+__all__ = ["LiftOptions", "LiftedTarget", "lift_image", "object_mask", "alpha_mask", "inflate_silhouette",
            "depth_for_radius"]
 
 
@@ -49,6 +49,11 @@ class LiftOptions:
         the image at that distance: a source filmed from afar then drives a
         target seen with the same perspective, so translations scaled by
         object size move both alike on screen. None: ``fov_deg`` decides.
+    depth : float or None
+        Depth of the object's mid-surface along the camera's optical axis, in
+        world units. When set, it places the object (e.g. where a source
+        prior put it) and its size follows from the camera; ``radius`` is
+        then unused. None: the depth follows from ``radius``.
     """
 
     stride: int = 1
@@ -57,6 +62,7 @@ class LiftOptions:
     radius: float = 1.0
     opacity: float = 0.98
     relative_depth: float | None = None
+    depth: float | None = None
 
 
 @dataclass(frozen=True)
@@ -77,6 +83,21 @@ class LiftedTarget:
     pixel_of: np.ndarray
 
 
+def alpha_mask(image: np.ndarray) -> np.ndarray | None:
+    """(H, W) bool mask from an RGBA image's alpha channel; None when it has none or it is fully opaque.
+
+    Raises :class:`InputError` for a fully transparent image (nothing to lift).
+    """
+    if image.ndim != 3 or image.shape[2] not in (3, 4):
+        raise InputError(f"target image must be RGB or RGBA, got shape {image.shape}")
+    if image.shape[2] == 3:
+        return None
+    mask = image[..., 3] >= 128
+    if not mask.any():
+        raise InputError("target image is fully transparent: its alpha channel holds no object")
+    return None if mask.all() else mask
+
+
 def object_mask(image: np.ndarray) -> np.ndarray:
     """(H, W, 3 or 4) uint8 image → (H, W) bool object mask.
 
@@ -85,15 +106,10 @@ def object_mask(image: np.ndarray) -> np.ndarray:
     exact for product shots and renders); the bundled salient-object model
     (U²-Netp); GrabCut from a centred box when the model finds nothing.
     """
-    if image.ndim != 3 or image.shape[2] not in (3, 4):
-        raise InputError(f"target image must be RGB or RGBA, got shape {image.shape}")
-    if image.shape[2] == 4:
-        mask = image[..., 3] >= 128
-        if not mask.any():
-            raise InputError("target image is fully transparent: its alpha channel holds no object")
-        if not mask.all():
-            return mask
-        image = image[..., :3]  # an opaque alpha channel carries no mask
+    mask = alpha_mask(image)
+    if mask is not None:
+        return mask
+    image = image[..., :3]  # an opaque alpha channel carries no mask
     keyed = _key_plain_background(image)
     if keyed is not None:
         return keyed
@@ -181,7 +197,8 @@ def lift_image(image: np.ndarray, *, mask: np.ndarray | None = None, camera: Cam
                options: LiftOptions = LiftOptions()) -> LiftedTarget:
     """Lift an (H, W, 3|4) uint8 image into Gaussians seen by ``camera`` as the image.
 
-    The object sits at the depth :func:`depth_for_radius` gives; each
+    The object sits at ``options.depth``, or else at the depth
+    :func:`depth_for_radius` gives; each
     ``stride``-pixel cell inside the mask gets a front Gaussian at
     ``z0 - h`` and a back one at ``z0 + h`` (``h`` from
     :func:`inflate_silhouette`, scaled by ``thickness``), plus fill-in
@@ -207,7 +224,9 @@ def lift_image(image: np.ndarray, *, mask: np.ndarray | None = None, camera: Cam
     if (camera.width, camera.height) != (w_img, h_img):
         raise InputError("reference camera size differs from the target image size")
     f = 0.5 * (camera.fx + camera.fy)
-    z0 = depth_for_radius(mask, f, options.radius)
+    if options.depth is not None and not (np.isfinite(options.depth) and options.depth > 0):
+        raise InputError(f"target depth must be positive, got {options.depth}")
+    z0 = depth_for_radius(mask, f, options.radius) if options.depth is None else float(options.depth)
     # Half-thickness in world units: pixels at z0 are z0 / f world units wide.
     half = relief * (z0 / f)
 

@@ -15,7 +15,7 @@ from ..errors import InputError
 from ..geometry import axis_angle_to_matrix, invert_transform, matrix_to_axis_angle, se3_interpolate
 from ..prior import SpatPrior
 
-__all__ = ["retime", "scale_motion", "source_times", "LOOPS"]
+__all__ = ["output_length", "retime", "scale_motion", "source_times", "LOOPS"]
 
 #: What happens when the output is longer than the source: hold the last pose,
 #: start again from the first, or play back and forth.
@@ -42,6 +42,13 @@ def source_times(frames: int, last: int, *, speed: float = 1.0, loop: str = "hol
     return last - times if reverse else times
 
 
+def output_length(source_frames: int, speed: float, frames: int | None = None) -> int:
+    """Number of output frames: ``frames`` if given, else enough to play the source once at ``speed``."""
+    if frames is not None:
+        return frames
+    return int(np.floor((source_frames - 1) / speed)) + 1 if np.isfinite(speed) and speed > 0 else 0
+
+
 def retime(prior: SpatPrior, *, speed: float = 1.0, frames: int | None = None, loop: str = "hold",
            reverse: bool = False) -> SpatPrior:
     """A prior played at ``speed`` for ``frames`` output frames.
@@ -51,8 +58,7 @@ def retime(prior: SpatPrior, *, speed: float = 1.0, frames: int | None = None, l
     backwards (from its last pose, taken as the rest pose).
     """
     last = prior.num_frames - 1
-    if frames is None:
-        frames = int(np.floor(last / speed)) + 1 if np.isfinite(speed) and speed > 0 else 0
+    frames = output_length(prior.num_frames, speed, frames)
     times = source_times(frames, last, speed=speed, loop=loop, reverse=reverse)
     if np.array_equal(times, np.arange(prior.num_frames)):
         return prior
