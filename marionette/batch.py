@@ -75,7 +75,7 @@ from . import pipeline
 from .camera import MAX_IMAGE_SIDE
 from .errors import InputError
 from .io import read_prior, write_prior
-from .io.atomic import atomic_path, check_output_dir, leftover_temporaries
+from .io.atomic import check_output_dir, leftover_temporaries, write_text
 from .prior import SpatPrior
 from .progress import Reporter
 from .render.camera_path import CAMERA_MOVES
@@ -420,13 +420,8 @@ def _read_manifest(path: Path) -> dict[str, dict[str, str]]:
             for k in empty}
 
 
-def _write_text(path: Path, text: str) -> None:
-    with atomic_path(path) as tmp:
-        tmp.write_text(text)
-
-
 def _write_manifest(path: Path, manifest: dict) -> None:
-    _write_text(path, json.dumps({"version": _MANIFEST_VERSION} | manifest, indent=1, sort_keys=True))
+    write_text(path, json.dumps({"version": _MANIFEST_VERSION} | manifest, indent=1, sort_keys=True))
 
 
 # --- tasks (run on the workers) ------------------------------------------------------------------------------------
@@ -604,7 +599,7 @@ def _write_tables(folder: Path, rows: list[JobResult]) -> None:
     writer = csv.writer(buffer, lineterminator="\n")
     writer.writerow(RESULT_COLUMNS)
     writer.writerows(_cells(row, folder) for row in rows)
-    _write_text(folder / "results.csv", buffer.getvalue())
+    write_text(folder / "results.csv", buffer.getvalue())
     lines = ["| " + " | ".join(RESULT_COLUMNS) + " |", "|" + "---|" * len(RESULT_COLUMNS)]
     lines += ["| " + " | ".join(c.replace("|", "\\|") for c in _cells(row, folder)) + " |" for row in rows]
-    _write_text(folder / "results.md", "\n".join(lines) + "\n")
+    write_text(folder / "results.md", "\n".join(lines) + "\n")

@@ -13,7 +13,7 @@ import time
 import tomllib
 import warnings
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Annotated, Any, Optional
 
@@ -24,8 +24,8 @@ from . import pipeline
 from .camera import MAX_IMAGE_SIDE, Camera
 from .geometry import rotation_angle_deg
 from .errors import InputError
-from .io import read_ply, read_prior, write_image, write_prior, write_splat_animation
-from .io.atomic import check_output_dir, check_output_folder, check_output_path
+from .io import read_masks, read_ply, read_prior, read_video, write_image, write_prior, write_splat_animation
+from .io.atomic import check_output_dir, check_output_folder, check_output_path, write_text
 from .plot import plot_prior
 from .progress import Reporter
 from .render import render
@@ -229,12 +229,16 @@ Smooth = Annotated[float, typer.Option(help="Temporal smoothing of the poses (0:
 Plot = Annotated[Optional[Path], typer.Option(help="Also draw each part's rotation and translation to this PNG.")]
 
 
+def _check_max_side(max_side: int) -> None:
+    if not 16 <= max_side <= MAX_IMAGE_SIDE:
+        raise InputError(f"--max-side must be within 16..{MAX_IMAGE_SIDE}, got {max_side}")
+
+
 def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, stride: int, max_side: int,
              smooth: float, plot, session: _Session):
     """Shared by ``extract`` and ``run``: check the options, extract, draw the plot."""
     parts_value = _parse_parts(parts)
-    if not 16 <= max_side <= MAX_IMAGE_SIDE:
-        raise InputError(f"--max-side must be within 16..{MAX_IMAGE_SIDE}, got {max_side}")
+    _check_max_side(max_side)
     if not (np.isfinite(smooth) and 0 <= smooth <= 100):
         raise InputError(f"--smooth must be within 0..100, got {smooth}")
     if plot is not None:
@@ -283,6 +287,7 @@ TargetMask = Annotated[Optional[Path], typer.Option(help="Image marking the targ
 PlyDir = Annotated[Optional[Path], typer.Option(help="Also write each frame's Gaussians as DIR/00000.ply ….")]
 Splats = Annotated[Optional[Path], typer.Option(help="Also write the animated Gaussians as one .npz for `marionette view`.")]
 Preview = Annotated[Optional[Path], typer.Option(help="Also write a small looping GIF preview of the result.")]
+Report = Annotated[Optional[Path], typer.Option(help="Also write a JSON report: motion fidelity to the source, rigidity, jerk.")]
 SideBySide = Annotated[Optional[Path], typer.Option(help="Also write the source beside the result (.mp4 or .gif).")]
 
 
@@ -409,21 +414,76 @@ def run(source: Annotated[Path, typer.Argument(help="Video file or folder of fra
         background: Background = "1,1,1", size: Size = None, camera: CameraMove = "static",
         camera_amount: CameraAmount = None, camera_path: CameraPath = None, ply_dir: PlyDir = None,
         target_mask: TargetMask = None, anchor: Anchor = "centroid", part_seed: PartSeed = None,
-        preview: Preview = None, splats: Splats = None, side_by_side: SideBySide = None, quiet: Quiet = False,
-        verbose: Verbose = False, json_summary: Json = False, config: Config = None) -> None:
+        preview: Preview = None, splats: Splats = None, side_by_side: SideBySide = None, report: Report = None,
+        quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False, config: Config = None) -> None:
     """Extract the source's motion and transfer it onto the target in one go."""
     play = _playback(output, target, frames, speed, loop, reverse, rotation_scale, translation_scale, fps, background, size,
                      camera, camera_amount, camera_path, ply_dir, target_mask, anchor, part_seed, preview, splats)
     if side_by_side is not None:
         _video_output(side_by_side)
+    if report is not None and report.suffix.lower() != ".json":
+        raise InputError(f"--report must name a .json file, got {report.name!r}")
+    if report is not None:
+        check_output_path(report)
     with _session("run", quiet, verbose, json_summary) as session:
         prior = _extract(source, masks, depth, focal, parts, start, end, stride, max_side, smooth, plot, session)
         trajectory = _transfer_and_render(prior, target, output, play, session)
+        times = source_times(trajectory.num_frames, prior.num_frames - 1, speed=speed, loop=loop, reverse=reverse)
         if side_by_side is not None:
-            times = source_times(trajectory.num_frames, prior.num_frames - 1, speed=speed, loop=loop, reverse=reverse)
             pipeline.write_side_by_side(side_by_side, source, output, times, fps=play.fps or prior.fps,
                                         max_side=max_side, start=start, end=end, stride=stride)
             session.output("side_by_side", side_by_side)
+        if report is not None:
+            from .eval import run_report
+
+            with session.reporter.stage("report", 1) as progress:
+                figures = run_report(source, output, trajectory, times, masks=masks, max_side=max_side,
+                                     start=start, end=end, stride=stride)
+                progress(1, 1)
+            write_text(report, json.dumps(figures, indent=2) + "\n")
+            session.figures["report"] = figures
+            session.output("report", report)
+
+
+@app.command("eval-self")
+def eval_self_cmd(source: Annotated[Path, typer.Argument(help="Video file or folder of frames.")],
+                  output: Annotated[Path, typer.Option("--output", "-o", help="Output folder.")],
+                  masks: Masks = None, parts: Parts = "1", max_side: MaxSide = pipeline.DEFAULT_MAX_SIDE,
+                  quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False,
+                  config: Config = None) -> None:
+    """Self-transfer (the paper's Table 1): source frame 0 as the target, scored against the masked source."""
+    from .eval import EVAL_EXTRACT, eval_self
+
+    _check_max_side(max_side)
+    options = replace(EVAL_EXTRACT, parts=_parse_parts(parts))
+    if masks is not None and not masks.is_dir():
+        raise InputError(f"mask folder {masks} does not exist")
+    check_output_dir(output)
+    with _session("eval-self", quiet, verbose, json_summary) as session:
+        metrics = eval_self(source, masks, output, max_side=max_side, options=options, reporter=session.reporter)
+        for name in ("video.mp4", "metrics.json", "frames.csv", "side_by_side.mp4", "metrics.png"):
+            session.output(name.split(".")[0], output / name)
+        session.figures.update({k: metrics[k] for k in ("psnr", "ssim", "lpips", "motion_fidelity")})
+        if not json_summary:
+            fidelity = "n/a" if metrics["motion_fidelity"] is None else f"{metrics['motion_fidelity']:.3f}"
+            session.reporter.message(f"PSNR {metrics['psnr']:.2f} dB, SSIM {metrics['ssim']:.3f}, "
+                                     f"motion fidelity {fidelity}, LPIPS skipped (no weights offline)")
+
+
+@app.command("eval")
+def eval_cmd(source: Annotated[Path, typer.Argument(help="Source video file or folder of frames.")],
+             result: Annotated[Path, typer.Argument(help="Transferred video, e.g. from `marionette run`.")],
+             masks: Masks = None, max_side: MaxSide = pipeline.DEFAULT_MAX_SIDE, json_summary: Json = False,
+             config: Config = None) -> None:
+    """Motion fidelity of RESULT to SOURCE: 1 the same motion, 0 unrelated, -1 opposite (frame by frame)."""
+    from .eval import motion_fidelity
+
+    _check_max_side(max_side)
+    src, res = read_video(source, max_side=max_side), read_video(result, max_side=max_side)
+    t, h, w = src.frames.shape[:3]
+    src_masks = None if masks is None else read_masks(masks, count=t, size=(w, h), indices=src.indices)
+    fidelity = motion_fidelity(src.frames, src_masks, res.frames, None)
+    print(json.dumps({"motion_fidelity": fidelity}) if json_summary else f"motion fidelity {fidelity:.4f}")
 
 
 @app.command()

@@ -111,3 +111,44 @@ def test_splats_export_holds_every_frame_for_the_viewer(tmp_path, prior_file, ta
     assert "missing.npz" in one_error_line(capsys)
     assert main(["transfer", str(prior_file), str(target_png), "-o", str(out), "--splats", str(tmp_path / "s.ply")]) == 2
     assert "--splats" in one_error_line(capsys)
+
+
+@pytest.fixture(scope="module")
+def clip(tmp_path_factory):
+    """A small synthetic clip: frame folder and mask folder."""
+    root = tmp_path_factory.mktemp("clip")
+    scene = make_scene("translation", num_frames=12, size=(128, 96), seed=3, background="plain")
+    write_video(root / "frames", scene.frames, scene.fps)
+    (root / "masks").mkdir()
+    for i, m in enumerate(scene.masks):
+        cv2.imwrite(str(root / "masks" / f"{i:05d}.png"), m.astype(np.uint8) * 255)
+    return root
+
+
+def test_eval_self_command_writes_the_table_1_outputs(tmp_path, clip, capsys):
+    out = tmp_path / "eval"
+    assert main(["eval-self", str(clip / "frames"), "--masks", str(clip / "masks"), "-o", str(out), "-q",
+                 "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert summary["figures"]["psnr"] == metrics["psnr"] > 18 and metrics["lpips"] is None
+    assert {"video", "metrics", "frames", "side_by_side"} <= set(summary["outputs"])
+    assert len(read_video(out / "video.mp4").frames) == 12
+    assert main(["eval-self", str(clip / "frames"), "-o", str(out), "--max-side", "4"]) == 2
+    assert "--max-side" in one_error_line(capsys)
+
+
+def test_eval_command_and_run_report_give_motion_fidelity(tmp_path, clip, target_png, capsys):
+    out, report = tmp_path / "r.mp4", tmp_path / "r.json"
+    assert main(["run", str(clip / "frames"), str(target_png), "--masks", str(clip / "masks"), "-o", str(out),
+                 "-q", "--report", str(report)]) == 0
+    figures = json.loads(report.read_text())
+    assert figures["motion_fidelity"] > 0.5 and figures["rigidity_error"] < 1e-3
+    assert main(["eval", str(clip / "frames"), str(out), "--masks", str(clip / "masks"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["motion_fidelity"] == pytest.approx(figures["motion_fidelity"])
+    backwards = tmp_path / "back.mp4"
+    assert main(["run", str(clip / "frames"), str(target_png), "--masks", str(clip / "masks"), "-o",
+                 str(backwards), "-q", "--reverse"]) == 0
+    assert main(["eval", str(clip / "frames"), str(backwards), "--masks", str(clip / "masks")]) == 0
+    reversed_fidelity = float(capsys.readouterr().out.split()[-1])
+    assert reversed_fidelity < figures["motion_fidelity"] - 0.5

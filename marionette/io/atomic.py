@@ -13,7 +13,7 @@ from pathlib import Path
 
 from ..errors import InputError
 
-__all__ = ["atomic_path", "atomic_folder", "leftover_temporaries", "check_output_path", "check_output_dir",
+__all__ = ["atomic_path", "atomic_folder", "write_text", "leftover_temporaries", "check_output_path", "check_output_dir",
            "check_output_folder"]
 
 
@@ -51,6 +51,12 @@ def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
     return mask
+
+
+def write_text(path: str | Path, text: str) -> None:
+    """Write a UTF-8 text file atomically."""
+    with atomic_path(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
 
 
 _TMP_PREFIX, _TMP_SUFFIX = ".{}.", ".tmp{}"

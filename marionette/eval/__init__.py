@@ -1,0 +1,9 @@
+"""Evaluation: image metrics, motion fidelity and the self-transfer protocol of the paper's Table 1."""
+
+from .fidelity import FidelityOptions, motion_fidelity
+from .metrics import frame_metrics, on_white
+from .report import run_report
+from .self_eval import EVAL_EXTRACT, eval_self, self_target
+
+__all__ = ["eval_self", "EVAL_EXTRACT", "self_target", "motion_fidelity", "FidelityOptions", "frame_metrics", "on_white",
+           "run_report"]
