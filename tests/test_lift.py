@@ -110,3 +110,39 @@ def test_relative_depth_sets_distance_over_size():
         assert np.abs(uv - lifted.pixel_of).max() < 1e-3  # still pixel-aligned
     with pytest.raises(InputError, match="relative depth"):
         lift_image(img, options=LiftOptions(relative_depth=-1.0))
+
+
+def test_depth_map_shapes_the_front_surface_and_keeps_the_reference_view():
+    from marionette.render import render
+
+    img, inside = disc_image()
+    img = cv2.GaussianBlur(img, (0, 0), 1.0)
+    img[..., 3] = np.where(inside, 255, 0)
+    xx = np.mgrid[:96, :96][1].astype(np.float32)
+    depth = 3000.0 + 20.0 * xx  # a plane leaning away to the right, in millimetres
+    depth[40:44, 40:44] = 0  # unknown values are filled from their neighbours
+    lifted = lift_image(img, depth_map=depth)
+    g, cam = lifted.gaussians, lifted.camera
+    uv, z = cam.project(g.means)
+    front = np.zeros(len(z), bool)
+    for u, v in {tuple(p) for p in lifted.pixel_of[:: 7]}:  # the nearest Gaussian of a pixel is its front one
+        at = np.nonzero((lifted.pixel_of[:, 0] == u) & (lifted.pixel_of[:, 1] == v))[0]
+        front[at[np.argmin(z[at])]] = True
+    slope = np.polyfit(lifted.pixel_of[front, 0], z[front], 1)[0]
+    flat = lift_image(img)
+    flat_z = flat.camera.project(flat.gaussians.means)[1]
+    assert slope > 0 and np.median(z[front]) == pytest.approx(np.median(flat_z[flat_z < np.median(flat_z)]), rel=0.2)
+    assert np.all(np.isfinite(g.means))
+    out = render(g, cam, (1.0, 1.0, 1.0)).image  # the reference view still reproduces the image
+    inner = cv2.erode(inside.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    assert 10 * np.log10(1 / ((out[inner] - img[..., :3][inner] / 255.0) ** 2).mean()) >= 35
+
+
+def test_bad_depth_maps_are_refused():
+    img, inside = disc_image()
+    with pytest.raises(InputError, match="less than half"):
+        lift_image(img, depth_map=np.zeros((96, 96)))
+    with pytest.raises(InputError, match="is 48x96"):
+        lift_image(img, depth_map=np.ones((96, 48)))
+    with pytest.raises(InputError, match="infinite"):
+        lift_image(img, depth_map=np.full((96, 96), np.inf))

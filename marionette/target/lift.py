@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy import sparse
+from scipy import ndimage, sparse
 from scipy.sparse.linalg import spsolve
 
 from ..camera import Camera
@@ -96,6 +96,24 @@ def alpha_mask(image: np.ndarray) -> np.ndarray | None:
     if not mask.any():
         raise InputError("target image is fully transparent: its alpha channel holds no object")
     return None if mask.all() else mask
+
+
+def _front_from_depth(depth_map: np.ndarray, mask: np.ndarray, z0: float, half: np.ndarray) -> np.ndarray:
+    """(H, W) front-surface depth in world units from a depth map in any unit (see :func:`lift_image`)."""
+    depth = np.asarray(depth_map, dtype=np.float64)
+    if depth.shape != mask.shape:
+        raise InputError(f"target depth map is {depth.shape[1]}x{depth.shape[0]}, image is "
+                         f"{mask.shape[1]}x{mask.shape[0]}")
+    if np.isinf(depth).any():
+        raise InputError("target depth map contains infinite values")
+    with np.errstate(invalid="ignore"):
+        known = mask & (depth > 0)
+    if known.sum() < 0.5 * mask.sum():
+        raise InputError("target depth map has valid (positive) depth on less than half of the object")
+    front = depth * ((z0 - np.median(half[mask])) / np.median(depth[known]))
+    # Unknown depth inside the object takes its nearest known value.
+    _, (iy, ix) = ndimage.distance_transform_edt(~known, return_indices=True)
+    return front[iy, ix]
 
 
 def object_mask(image: np.ndarray) -> np.ndarray:
@@ -194,15 +212,19 @@ def depth_for_radius(mask: np.ndarray, focal: float, radius: float = 1.0) -> flo
 
 
 def lift_image(image: np.ndarray, *, mask: np.ndarray | None = None, camera: Camera | None = None,
-               options: LiftOptions = LiftOptions()) -> LiftedTarget:
+               depth_map: np.ndarray | None = None, options: LiftOptions = LiftOptions()) -> LiftedTarget:
     """Lift an (H, W, 3|4) uint8 image into Gaussians seen by ``camera`` as the image.
 
     The object sits at ``options.depth``, or else at the depth
     :func:`depth_for_radius` gives; each
     ``stride``-pixel cell inside the mask gets a front Gaussian at
-    ``z0 - h`` and a back one at ``z0 + h`` (``h`` from
+    ``m - h`` and a back one at ``m + h`` (``h`` from
     :func:`inflate_silhouette`, scaled by ``thickness``), plus fill-in
     Gaussians along steep walls so the volume stays closed when it turns.
+    The mid-surface ``m`` is the plane ``z0``; with a ``depth_map``
+    (H, W) (camera z, any unit, NaN or <= 0 unknown) the front surface
+    follows the map instead, scaled so that its median over the object is
+    ``z0 - median(h)``, and ``m`` lies ``h`` behind it.
     """
     h_img, w_img = image.shape[:2]
     if options.stride < 1:
@@ -229,29 +251,33 @@ def lift_image(image: np.ndarray, *, mask: np.ndarray | None = None, camera: Cam
     z0 = depth_for_radius(mask, f, options.radius) if options.depth is None else float(options.depth)
     # Half-thickness in world units: pixels at z0 are z0 / f world units wide.
     half = relief * (z0 / f)
+    mid = np.full((h_img, w_img), z0) if depth_map is None else _front_from_depth(depth_map, mask, z0, half) + half
 
     s = options.stride
     vs, us = np.mgrid[s // 2:h_img:s, s // 2:w_img:s]
     keep = mask[vs, us]
     us, vs = us[keep], vs[keep]
     rgb = image[vs, us, :3].astype(np.float32) / 255.0
-    hz = half[vs, us]
-    # Depth step to the steepest 4-neighbour cell: walls that need filling.
-    hp = np.pad(half, s, mode="constant")
-    steep = np.zeros_like(hz)
-    for dv, du in ((s, 0), (-s, 0), (0, s), (0, -s)):
-        steep = np.maximum(steep, hz - hp[vs + s + dv, us + s + du])
+    hz, mz = half[vs, us], mid[vs, us]
     spacing = s * z0 / f  # lateral spacing of cells, world units
 
+    border = np.pad(np.zeros(mask.shape, bool), s, constant_values=True)
     zs, idx = [], []
     for sign in (-1.0, 1.0):
-        zs.append(z0 + sign * hz)
+        surface = mid + sign * half
+        zs.append(mz + sign * hz)
         idx.append(np.arange(len(us)))
-        # Fill-in layers from the surface toward the outline, one per spacing.
-        layers = np.floor(steep / spacing).astype(int)
+        # Depth step to the steepest 4-neighbour cell outside the surface: a wall that needs filling,
+        # one fill-in layer per spacing from the surface toward the mid-surface.
+        sp = np.pad(np.where(mask, surface, mid), s, mode="edge")
+        sp[border] = np.pad(mid, s, mode="edge")[border]  # beyond the image: outside the object
+        steep = np.zeros_like(hz)
+        for dv, du in ((s, 0), (-s, 0), (0, s), (0, -s)):
+            steep = np.maximum(steep, sign * (surface[vs, us] - sp[vs + s + dv, us + s + du]))
+        layers = np.floor(np.minimum(steep, 2 * hz) / spacing).astype(int)
         for k in range(1, int(layers.max(initial=0)) + 1):
             sel = np.nonzero(layers >= k)[0]
-            zs.append(z0 + sign * (hz[sel] - k * spacing))
+            zs.append(mz[sel] + sign * (hz[sel] - k * spacing))
             idx.append(sel)
     z = np.concatenate(zs)
     idx = np.concatenate(idx)
