@@ -1,0 +1,312 @@
+"""Run every benchmark, then assemble ``docs/RESULTS.md`` from their pages and plots.
+
+Each ``benchmarks/bench_*.py`` script (and ``paper_setting.py``) runs in its
+own process, in a fixed order; the ones that need ``../shared/data`` are
+skipped when it is absent, and a failing script does not stop the others.
+Each writes its page under ``docs/benchmarks/``; :func:`assemble` then
+gathers the pages into one report with a section per question (the paper's
+Table 1, pose accuracy, the paper's setting against its Table 2, rasterizer
+throughput, scaling), the machine and the date, and lists the pages that are
+missing as not run.
+
+    python benchmarks/run_all.py [--quick] [--only NAME,...] [--assemble-only]
+
+``--quick`` runs small versions (a smoke test, minutes instead of an hour);
+they overwrite the pages like a full run, so re-run without it for figures
+worth keeping.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import os
+import platform
+import re
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+BENCH_DIR = ROOT / "docs" / "benchmarks"
+RESULTS = ROOT / "docs" / "RESULTS.md"
+IMAGES = ROOT / "docs" / "images" / "results"
+DATA = ROOT.parent / "shared" / "data"
+
+
+@dataclass(frozen=True)
+class Bench:
+    """One benchmark script: its page, whether it needs the real data, its arguments for ``--quick``."""
+
+    script: str
+    page: str
+    needs_data: bool = False
+    quick: tuple[str, ...] = ()
+
+
+#: In running order.
+BENCHES = (
+    Bench("bench_table1.py", "table1.md", needs_data=True, quick=("--clips", "car-shadow")),
+    Bench("bench_extract.py", "extract.md", quick=("--seeds", "1", "--frames", "24", "--size", "160x120",
+                                                   "--large", "0")),
+    Bench("bench_parts.py", "parts.md", quick=("--seeds", "1", "--frames", "24", "--size", "160x120")),
+    Bench("bench_extract_real.py", "extract_real.md", needs_data=True, quick=("--runs", "1")),
+    Bench("bench_foreground.py", "foreground.md", needs_data=True),
+    Bench("bench_rasterizer.py", "rasterizer.md", quick=("--runs", "3", "--no-reference")),
+    Bench("bench_transfer.py", "transfer.md", quick=("--runs", "1", "--gaussians", "50000")),
+    Bench("paper_setting.py", "paper_setting.md", quick=("--runs", "1")),
+    Bench("bench_memory.py", "memory.md", quick=("--frames", "100", "--cache", "/tmp/marionette-bench-memory-quick")),
+    Bench("bench_scaling.py", "scaling.md", quick=("--quick",)),
+)
+
+#: RESULTS.md sections: title, one line on what it answers, pages in order.
+SECTIONS = (
+    ("Table 1: self-reconstruction, paper vs ours",
+     "The paper's Table 1 protocol on the real clips (source frame 0 as the target, rendered with the source"
+     " camera, compared with the masked source frames on white).", ("table1.md",)),
+    ("Pose accuracy on the synthetic suite",
+     "Rotation and centroid errors against exact ground truth, by motion type and tracking noise; rigid parts"
+     " found on the synthetic hinge.", ("extract.md", "parts.md")),
+    ("Time and memory in the paper's setting",
+     "50 source frames at 854x480 and a 512x512 target, next to the paper's Table 2 (26.8 minutes on an RTX"
+     " A6000); peak memory on long videos.", ("paper_setting.md", "memory.md")),
+    ("Rasterizer throughput",
+     "Frames per second of the CPU rasterizer against the Gaussian count (scaling section: against the"
+     " resolution too).", ("rasterizer.md",)),
+    ("Scaling", "Time against source frames and target Gaussians, with the measured growth.", ("scaling.md",)),
+    ("More measurements", "Extraction on the real clips, automatic foreground, transfer speed.",
+     ("extract_real.md", "foreground.md", "transfer.md")),
+)
+
+
+def machine() -> dict[str, str]:
+    """CPU model and count, Python, OS."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        cpu = next(line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
+                   if line.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    return {"CPU": cpu, "cores": str(os.cpu_count()), "Python": platform.python_version(),
+            "OS": f"{platform.system()} {platform.release()}"}
+
+
+def _shift_headings(text: str, levels: int) -> str:
+    """Demote every markdown heading outside code fences by ``levels``."""
+    out, fenced = [], False
+    for line in text.splitlines():
+        fenced ^= line.startswith("```")
+        out.append("#" * levels + line if not fenced and re.match(r"#+ ", line) else line)
+    return "\n".join(out)
+
+
+def _relink(text: str, page_dir: Path, out_dir: Path) -> str:
+    """Rewrite relative link targets of a page in ``page_dir`` so they work from ``out_dir``."""
+    def fix(match: re.Match) -> str:
+        target = match.group(2)
+        if re.match(r"[a-z]+:|#|/", target):
+            return match.group(0)
+        return f"{match.group(1)}({os.path.relpath(page_dir / target, out_dir)})"
+    return re.sub(r"(!?\[[^\]]*\])\(([^)\s]+)\)", fix, text)
+
+
+def page_body(path: Path, out_dir: Path) -> str:
+    """A page without its title line, headings demoted under a section, links valid from ``out_dir``."""
+    lines = path.read_text().strip().splitlines()
+    if lines and lines[0].startswith("# "):
+        lines = lines[1:]
+    return _relink(_shift_headings("\n".join(lines).strip(), 2), path.parent, out_dir)
+
+
+def markdown_tables(text: str) -> list[list[list[str]]]:
+    """Every pipe table in ``text`` as a list of rows of cells (header first, the ``|---|`` rule dropped)."""
+    tables, rows = [], []
+    for line in text.splitlines() + [""]:
+        if line.startswith("|"):
+            cells = [c.strip() for c in line.strip().strip("|").split("|")]
+            if not all(re.fullmatch(r":?-+:?", c) for c in cells):
+                rows.append(cells)
+        elif rows:
+            tables.append(rows)
+            rows = []
+    return tables
+
+
+def plot_pose_accuracy(page: Path, path: Path) -> bool:
+    """Bars of the median rotation and centroid errors per motion and noise level, from the summary
+    table of ``extract.md``; False (nothing written) when the page has no such table."""
+    from matplotlib.figure import Figure
+
+    table = next((t for t in markdown_tables(page.read_text()) if "median rotation (deg)" in t[0]), None)
+    if table is None:
+        return False
+    col = {name: i for i, name in enumerate(table[0])}
+    motions = list(dict.fromkeys(row[col["motion"]] for row in table[1:]))
+    noises = list(dict.fromkeys(row[col["noise (px)"]] for row in table[1:]))
+    fig = Figure(figsize=(9, 3.6), dpi=100)
+    for ax, (column, label) in zip(fig.subplots(1, 2), (("median rotation (deg)", "rotation error (deg)"),
+                                                        ("median centroid (% radius)", "centroid error (% radius)"))):
+        width = 0.8 / len(noises)
+        for j, noise in enumerate(noises):
+            values = {row[col["motion"]]: float(row[col[column]]) for row in table[1:]
+                      if row[col["noise (px)"]] == noise}
+            ax.bar([i + (j - (len(noises) - 1) / 2) * width for i in range(len(motions))],
+                   [values.get(m, float("nan")) for m in motions], width, label=f"track noise {noise} px")
+        ax.set_xticks(range(len(motions)), motions, fontsize=8)
+        ax.set_ylabel(label)
+        ax.grid(True, axis="y", alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle("Pose accuracy on the synthetic suite (median over seeds)")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    return True
+
+
+def plot_table1(page: Path, path: Path) -> bool:
+    """Bars of PSNR and SSIM, the paper's and ours, per clip, from the table of ``table1.md``
+    (columns ``PSNR (dB)``, ``SSIM`` and ``paper SpaT PSNR / SSIM / LPIPS``); False when it has none."""
+    from matplotlib.figure import Figure
+
+    paper_column = "paper SpaT PSNR / SSIM / LPIPS"
+    table = next((t for t in markdown_tables(page.read_text()) if {"PSNR (dB)", "SSIM", paper_column} <= set(t[0])),
+                 None)
+    if table is None:
+        return False
+    col = {name: i for i, name in enumerate(table[0])}
+    rows = [row for row in table[1:] if re.fullmatch(r"[\d.]+ / [\d.]+ / .*", row[col[paper_column]])]
+    if not rows:
+        return False
+    names = [row[col["clip"]] if "clip" in col else row[0] for row in rows]
+    fig = Figure(figsize=(9, 3.6), dpi=100)
+    for ax, (metric, index) in zip(fig.subplots(1, 2), (("PSNR (dB)", 0), ("SSIM", 1))):
+        paper = [float(row[col[paper_column]].split(" / ")[index]) for row in rows]
+        ours = [float(row[col[metric]]) for row in rows]
+        x = range(len(rows))
+        ax.bar([i - 0.2 for i in x], paper, 0.4, label="paper (SpaT prior)", color="#bbbbbb")
+        ax.bar([i + 0.2 for i in x], ours, 0.4, label="ours", color="#3b75af")
+        ax.set_xticks(list(x), names, fontsize=8)
+        ax.set_ylim(0, 1.3 * max(paper + ours))  # room for the legend
+        ax.set_ylabel(f"{metric}, higher is better")
+        ax.grid(True, axis="y", alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle("Table 1: self-transfer on the real clips, paper vs ours")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    return True
+
+
+def assemble(bench_dir: Path, out: Path, images: Path, *, info: dict[str, str], date: str,
+             skipped: dict[str, str] | None = None) -> str:
+    """Write ``out`` (RESULTS.md) from the pages in ``bench_dir``, and summary plots to ``images``; its text.
+
+    Parameters
+    ----------
+    bench_dir : Path
+        Folder of the benchmark pages (``table1.md``, ``extract.md``, …).
+    out : Path
+        The report to write; links in the pages are rewritten relative to it.
+    images : Path
+        Folder for the plots drawn from the pages' tables.
+    info : dict
+        Machine description (name → value), shown as a table.
+    date : str
+        When the benchmarks ran.
+    skipped : dict, optional
+        Script → reason, for scripts skipped or failed in this run.
+    """
+    skipped = skipped or {}
+    bench_dir, out, images = bench_dir.resolve(), out.resolve(), images.resolve()
+    pages = [page for _, _, section_pages in SECTIONS for page in section_pages]
+    missing = [page for page in pages if not (bench_dir / page).is_file()]
+    script_of = {b.page: b.script for b in BENCHES}
+    lines = ["# Results", "",
+             f"Produced by `python benchmarks/run_all.py` on {date}. Each section gathers the pages that the"
+             " benchmark scripts write under `docs/benchmarks/`; every page starts with the command that"
+             " reproduces it. Wall times come from a shared machine and vary from run to run.", "",
+             "| machine | |", "|---|---|", *[f"| {k} | {v} |" for k, v in info.items()], ""]
+    stale = [script for script in skipped if script not in (script_of[page] for page in missing)]
+    if missing or stale:
+        lines += ["Not run:", ""]
+        lines += [f"- `{page}` (`benchmarks/{script_of[page]}`): {skipped.get(script_of[page], 'no page yet')}"
+                  for page in missing]
+        lines += [f"- `benchmarks/{script}`: {skipped[script]}; its page is from an earlier run" for script in stale]
+        lines.append("")
+    plots = {}  # page → a plot drawn from its table
+    for page, draw, name in (("table1.md", plot_table1, "table1.png"),
+                             ("extract.md", plot_pose_accuracy, "pose_accuracy.png")):
+        if (bench_dir / page).is_file() and draw(bench_dir / page, images / name):
+            plots[page] = images / name
+    lines += ["Contents:", ""] + [f"{i}. [{title}](#{_anchor(title)})" for i, (title, _, _) in
+                                  enumerate(SECTIONS, 1)] + [""]
+    for title, summary, section_pages in SECTIONS:
+        lines += [f"## {title}", "", summary, ""]
+        for page in section_pages:
+            path = bench_dir / page
+            if path.is_file():
+                first = path.read_text().lstrip().partition("\n")[0]
+                heading = first[2:].strip() if first.startswith("# ") else page
+                lines += [f"### {heading}", "", f"Page: [`{page}`]({os.path.relpath(path, out.parent)})", ""]
+                if page in plots:
+                    lines += [f"![{heading}]({os.path.relpath(plots[page], out.parent)})", ""]
+                lines += [page_body(path, out.parent), ""]
+            else:
+                lines += [f"_Not run: `{page}` is missing (`python benchmarks/{script_of[page]}`)._", ""]
+    text = "\n".join(lines).rstrip() + "\n"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(text)
+    return text
+
+
+def _anchor(title: str) -> str:
+    """GitHub's heading anchor: lower case, punctuation dropped, spaces as hyphens."""
+    return re.sub(r"[^\w\- ]", "", title.lower()).replace(" ", "-")
+
+
+def run_benches(benches: list[Bench], quick: bool) -> dict[str, str]:
+    """Run the scripts in turn; script → reason for those skipped or failed."""
+    skipped = {}
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
+    for bench in benches:
+        script = ROOT / "benchmarks" / bench.script
+        if not script.is_file():
+            skipped[bench.script] = "script not found"
+        elif bench.needs_data and not DATA.is_dir():
+            skipped[bench.script] = f"needs the real data in {DATA}"
+        else:
+            command = [sys.executable, str(script), *(bench.quick if quick else ())]
+            print(f"== {' '.join(command[1:])}", flush=True)
+            start = time.perf_counter()
+            code = subprocess.call(command, cwd=ROOT, env=env)
+            print(f"== {bench.script}: exit {code} after {time.perf_counter() - start:.0f} s", flush=True)
+            if code != 0:
+                skipped[bench.script] = f"failed (exit code {code})"
+            continue
+        print(f"== {bench.script}: skipped, {skipped[bench.script]}", flush=True)
+    return skipped
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="small, fast versions of every benchmark")
+    parser.add_argument("--only", help="comma-separated script names (without .py) to run")
+    parser.add_argument("--assemble-only", action="store_true", help="run nothing; rebuild RESULTS.md")
+    args = parser.parse_args()
+    benches = list(BENCHES)
+    if args.only:
+        names = set(args.only.split(","))
+        unknown = names - {b.script[:-3] for b in BENCHES}
+        if unknown:
+            parser.error(f"unknown benchmark(s): {', '.join(sorted(unknown))}")
+        benches = [b for b in BENCHES if b.script[:-3] in names]
+    skipped = {} if args.assemble_only else run_benches(benches, args.quick)
+    date = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    assemble(BENCH_DIR, RESULTS, IMAGES, info=machine(), date=date, skipped=skipped)
+    print(f"wrote {RESULTS}" + (f"; skipped or failed: {', '.join(skipped)}" if skipped else ""))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,114 @@
+"""The benchmark report: RESULTS.md assembly from benchmark pages, and the growth fit of the scaling benchmark."""
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+import run_all  # noqa: E402
+from bench_scaling import fit_growth  # noqa: E402
+
+EXTRACT_PAGE = """# Source motion extraction on synthetic scenes
+
+`python benchmarks/bench_extract.py` made this.
+
+## Summary
+
+| motion | noise (px) | median rotation (deg) | median centroid (% radius) | mean time (s) |
+|---|---|---|---|---|
+| translation | 0 | 0.47 | 5.32 | 1.0 |
+| translation | 1 | 2.27 | 5.33 | 1.1 |
+| hinge | 0 | 0.19 | 4.67 | 2.0 |
+| hinge | 1 | 0.18 | 5.03 | 2.1 |
+"""
+
+TABLE1_PAGE = """# Table 1
+
+| category | clip | PSNR (dB) | SSIM | LPIPS | paper SpaT PSNR / SSIM / LPIPS |
+|---|---|---|---|---|---|
+| single-slow | davis_car-shadow | 21.94 | 0.948 | skipped | 19.08 / 0.95 / 0.09 |
+| extra | backpack | 18.00 | 0.900 | skipped | – |
+"""
+
+SCALING_PAGE = """# Scaling
+
+Extraction grows as T^1.05 (FAKE-SCALING-MARKER).
+
+![plot](../images/results/scaling_frames.png)
+"""
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory):
+    tmp_path = tmp_path_factory.mktemp("report")
+    bench = tmp_path / "docs" / "benchmarks"
+    bench.mkdir(parents=True)
+    (bench / "extract.md").write_text(EXTRACT_PAGE)
+    (bench / "scaling.md").write_text(SCALING_PAGE)
+    (bench / "table1.md").write_text(TABLE1_PAGE)
+    (bench / "paper_setting.md").write_text("# The paper's setting end to end\n\n| total | 42.0 s |\n")
+    out = tmp_path / "docs" / "RESULTS.md"
+    text = run_all.assemble(bench, out, tmp_path / "docs" / "images" / "results", info={"CPU": "Test CPU 9000"},
+                            date="2026-01-02 03:04 UTC", skipped={"bench_memory.py": "failed (exit code 1)"})
+    return text, out, tmp_path
+
+
+def test_assemble_has_every_section_and_the_machine(report):
+    text, out, _ = report
+    assert out.read_text() == text
+    for title, _, _ in run_all.SECTIONS:
+        assert f"\n## {title}\n" in text
+    assert "Test CPU 9000" in text and "2026-01-02 03:04 UTC" in text
+
+
+def test_assemble_includes_pages_under_their_sections(report):
+    text, _, _ = report
+    scaling = text.index("\n## Scaling\n")
+    assert text.index("FAKE-SCALING-MARKER") > scaling
+    pose, paper = text.index("\n## Pose accuracy"), text.index("\n## Time and memory")
+    assert pose < text.index("\n#### Summary\n") < paper  # the page's "## Summary", two levels down
+    assert "| total | 42.0 s |" in text[paper:]
+    # The page's link (relative to docs/benchmarks/) now works from docs/.
+    assert "](images/results/scaling_frames.png)" in text and "../images/results/scaling_frames.png" not in text
+
+
+def test_assemble_lists_missing_pages_as_not_run(report):
+    text, _, _ = report
+    not_run = text[text.index("Not run:"):text.index("Contents:")]
+    assert "`memory.md` (`benchmarks/bench_memory.py`): failed (exit code 1)" in not_run
+    assert "`rasterizer.md` (`benchmarks/bench_rasterizer.py`): no page yet" in not_run
+    for page in ("table1.md", "extract.md", "scaling.md", "paper_setting.md"):
+        assert f"`{page}`" not in not_run
+    paper = text[text.index("\n## Time and memory"):text.index("\n## Rasterizer")]
+    assert "_Not run: `memory.md` is missing" in paper
+
+
+@pytest.mark.parametrize("name", ["pose_accuracy.png", "table1.png"])
+def test_assemble_draws_plots_from_the_tables(report, name):
+    text, _, tmp_path = report
+    assert (tmp_path / "docs" / "images" / "results" / name).stat().st_size > 1000
+    assert f"](images/results/{name})" in text
+
+
+def test_markdown_tables_drop_the_rule_and_split_cells():
+    tables = run_all.markdown_tables("intro\n| a | b |\n|---|---:|\n| 1 | 2 |\n\n| c |\n|---|\n| 3 |\n")
+    assert tables == [[["a", "b"], ["1", "2"]], [["c"], ["3"]]]
+
+
+def test_fit_growth_recovers_a_power_law():
+    sizes = np.array([50, 200, 800, 3200])
+    a, c = fit_growth(sizes, 0.02 * sizes ** 1.3)
+    assert a == pytest.approx(1.3, abs=1e-9) and c == pytest.approx(0.02, rel=1e-9)
+    # ±5 % timing noise moves the slope by well under 0.05 over a 64-fold range of sizes.
+    noisy = 0.02 * sizes ** 1.3 * np.random.default_rng(0).uniform(0.95, 1.05, sizes.size)
+    assert fit_growth(sizes, noisy)[0] == pytest.approx(1.3, abs=0.05)
+    assert fit_growth([1e5, 1e6], [2.0, 2.0])[0] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_fit_growth_needs_two_sizes():
+    with pytest.raises(ValueError):
+        fit_growth([100, 100], [1.0, 2.0])
+    with pytest.raises(ValueError):
+        fit_growth([100, 200], [1.0, 0.0])
