@@ -22,16 +22,18 @@ import typer
 
 from . import pipeline
 from .camera import MAX_IMAGE_SIDE, Camera
-from .geometry import rotation_angle_deg
 from .errors import InputError
+from .geometry import rotation_angle_deg
 from .io import read_masks, read_ply, read_prior, read_video, write_image, write_prior, write_splat_animation
 from .io.atomic import check_output_dir, check_output_folder, check_output_path, write_text
+from .io.video import DEFAULT_MAX_PIXELS
 from .plot import plot_prior
 from .progress import Reporter
 from .render import render
 from .render.camera_path import CAMERA_MOVES, check_camera_move, load_camera_path
 from .source import ExtractOptions
 from .transfer.controls import LOOPS, output_length, source_times
+from .transfer.refine import RefineOptions
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   help="Transfer the rigid motion of a video onto a single image, via 3D Gaussians.")
@@ -220,11 +222,15 @@ def demo(output: Annotated[Path, typer.Option("--output", "-o", help="Output fol
 Masks = Annotated[Optional[Path], typer.Option(help="Folder of per-frame mask images (default: found automatically).")]
 Depth = Annotated[Optional[Path], typer.Option(help="Folder of per-frame depth maps (16-bit PNG in mm, or .npy).")]
 Focal = Annotated[Optional[float], typer.Option(help="Focal length in pixels (default: 60° horizontal FOV).")]
-Parts = Annotated[str, typer.Option(help="Number of moving rigid parts, or 'auto' to choose; above 1, a static group is added when found.")]
+Parts = Annotated[str, typer.Option(
+    help="Number of moving rigid parts, or 'auto' to choose; above 1, a static group is added when found.")]
 Start = Annotated[int, typer.Option(help="First source frame to use.")]
 End = Annotated[Optional[int], typer.Option(help="Source frame to stop before (default: the end).")]
 Stride = Annotated[int, typer.Option(help="Use every N-th source frame.")]
 MaxSide = Annotated[int, typer.Option(help="Downscale source frames to this long side (intrinsics follow).")]
+MaxPixels = Annotated[int, typer.Option(
+    help="Downscale further, with a warning, when all selected source frames together hold more pixels (bounds"
+         " memory on long videos).")]
 Smooth = Annotated[float, typer.Option(help="Temporal smoothing of the poses (0: off).")]
 Plot = Annotated[Optional[Path], typer.Option(help="Also draw each part's rotation and translation to this PNG.")]
 
@@ -235,10 +241,12 @@ def _check_max_side(max_side: int) -> None:
 
 
 def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, stride: int, max_side: int,
-             smooth: float, plot, session: _Session):
+             max_pixels: int, smooth: float, plot, session: _Session):
     """Shared by ``extract`` and ``run``: check the options, extract, draw the plot."""
     parts_value = _parse_parts(parts)
     _check_max_side(max_side)
+    if max_pixels < 16 * 16 * 2:
+        raise InputError(f"--max-pixels must be at least {16 * 16 * 2}, got {max_pixels}")
     if not (np.isfinite(smooth) and 0 <= smooth <= 100):
         raise InputError(f"--smooth must be within 0..100, got {smooth}")
     if plot is not None:
@@ -246,7 +254,8 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
             raise InputError(f"--plot must name a .png file, got {plot.name!r}")
         check_output_path(plot)
     options = ExtractOptions(parts=parts_value, smoothing=smooth)
-    prior = pipeline.extract(source, masks=masks, depth=depth, focal=focal, max_side=max_side, start=start,
+    prior = pipeline.extract(source, masks=masks, depth=depth, focal=focal, max_side=max_side,
+                             max_pixels=max_pixels, start=start,
                              end=end, stride=stride, options=options, reporter=session.reporter)
     session.figures["source"] = _prior_figures(prior)
     if plot is not None:
@@ -259,12 +268,13 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
 def extract(source: Annotated[Path, typer.Argument(help="Video file or folder of frames.")],
             output: Output, masks: Masks = None, depth: Depth = None, focal: Focal = None, parts: Parts = "1",
             start: Start = 0, end: End = None, stride: Stride = 1, max_side: MaxSide = pipeline.DEFAULT_MAX_SIDE,
-            smooth: Smooth = 1.0, plot: Plot = None, quiet: Quiet = False, verbose: Verbose = False,
-            json_summary: Json = False, config: Config = None) -> None:
+            max_pixels: MaxPixels = DEFAULT_MAX_PIXELS, smooth: Smooth = 1.0, plot: Plot = None, quiet: Quiet = False,
+            verbose: Verbose = False, json_summary: Json = False, config: Config = None) -> None:
     """Extract the SpaT prior (per-part rigid motion) from a source video."""
     check_output_path(output)
     with _session("extract", quiet, verbose, json_summary) as session:
-        prior = _extract(source, masks, depth, focal, parts, start, end, stride, max_side, smooth, plot, session)
+        prior = _extract(source, masks, depth, focal, parts, start, end, stride, max_side, max_pixels, smooth, plot,
+                         session)
         write_prior(output, prior)
         session.output("prior", output)
 
@@ -277,17 +287,30 @@ RotationScale = Annotated[float, typer.Option(help="Multiply every rotation angl
 TranslationScale = Annotated[float, typer.Option(help="Multiply every displacement of the parts' centres.")]
 Fps = Annotated[Optional[float], typer.Option(help="Output frame rate (default: the source's).")]
 Background = Annotated[str, typer.Option(help="Background colour R,G,B (0-1 or 0-255).")]
-Size = Annotated[Optional[str], typer.Option(help="Output size WIDTHxHEIGHT for a .ply target (default 512x512); an image target is resized to it.")]
+Size = Annotated[Optional[str], typer.Option(
+    help="Output size WIDTHxHEIGHT for a .ply target (default 512x512); an image target is resized to it.")]
 CameraMove = Annotated[str, typer.Option("--camera", help="Camera move: static, orbit or dolly.")]
-CameraAmount = Annotated[Optional[float], typer.Option(help="Orbit degrees (default 30) or dolly share of the distance (default 0.3).")]
+CameraAmount = Annotated[Optional[float], typer.Option(
+    help="Orbit degrees (default 30) or dolly share of the distance (default 0.3).")]
 CameraPath = Annotated[Optional[Path], typer.Option(help="JSON list of CAMERA.json objects, one per frame (or one).")]
-PartSeed = Annotated[Optional[list[str]], typer.Option(help="Seed of a part on the target, K:X,Y in target pixels (repeatable; default: matched from the source's part layout).")]
-Anchor = Annotated[str, typer.Option(help="Turn each part about its own centre ('centroid') or about the source's world origin as the paper does ('world').")]
-TargetMask = Annotated[Optional[Path], typer.Option(help="Image marking the target object (default: alpha, else found automatically).")]
+PartSeed = Annotated[Optional[list[str]], typer.Option(
+    help="Seed of a part on the target, K:X,Y in target pixels (repeatable; default: matched from the source's"
+         " part layout).")]
+Refine = Annotated[bool, typer.Option(
+    "--refine/--no-refine", help="Refine a multi-part motion: parts turn about their joints, seams stay closed.")]
+Anchor = Annotated[str, typer.Option(
+    help="Turn each part about its own centre ('centroid') or about the source's world origin as the paper "
+         "does ('world').")]
+TargetDepth = Annotated[Optional[Path], typer.Option(
+    help="Depth map of the target image (16-bit PNG in mm, or .npy) to shape it instead of inflating its silhouette.")]
+TargetMask = Annotated[Optional[Path], typer.Option(
+    help="Image marking the target object (default: alpha, else found automatically).")]
 PlyDir = Annotated[Optional[Path], typer.Option(help="Also write each frame's Gaussians as DIR/00000.ply ….")]
-Splats = Annotated[Optional[Path], typer.Option(help="Also write the animated Gaussians as one .npz for `marionette view`.")]
+Splats = Annotated[Optional[Path], typer.Option(
+    help="Also write the animated Gaussians as one .npz for `marionette view`.")]
 Preview = Annotated[Optional[Path], typer.Option(help="Also write a small looping GIF preview of the result.")]
-Report = Annotated[Optional[Path], typer.Option(help="Also write a JSON report: motion fidelity to the source, rigidity, jerk.")]
+Report = Annotated[Optional[Path], typer.Option(
+    help="Also write a JSON report: motion fidelity to the source, rigidity, jerk.")]
 SideBySide = Annotated[Optional[Path], typer.Option(help="Also write the source beside the result (.mp4 or .gif).")]
 
 
@@ -309,15 +332,18 @@ class _Playback:
     camera_path: Path | None
     ply_dir: Path | None
     target_mask: Path | None
+    target_depth: Path | None
     anchor: str
     part_seeds: dict[int, tuple[float, float]] | None
+    refine: bool
     preview: Path | None
     splats: Path | None
 
 
-def _playback(output: Path, target: Path, frames, speed, loop, reverse, rotation_scale, translation_scale, fps, background, size,
-              camera, camera_amount, camera_path, ply_dir, target_mask, anchor, part_seed, preview,
-              splats) -> _Playback:
+def _playback(output: Path, target: Path, frames, speed, loop, reverse, rotation_scale, translation_scale, fps,
+              background, size,
+              camera, camera_amount, camera_path, ply_dir, target_mask, target_depth, anchor, part_seed, refine,
+              preview, splats) -> _Playback:
     """Check every playback option (before any work starts) and the output paths."""
     _transfer_checks(frames, speed, fps)
     if loop not in LOOPS:
@@ -347,10 +373,10 @@ def _playback(output: Path, target: Path, frames, speed, loop, reverse, rotation
         raise InputError(f"--anchor must be 'centroid' or 'world', got {anchor!r}")
     if target_mask is not None and not target_mask.is_file():
         raise InputError(f"target mask {target_mask} does not exist")
-    pipeline.check_target(target, target_mask)
+    pipeline.check_target(target, target_mask, target_depth)
     return _Playback(frames, speed, loop, reverse, rotation_scale, translation_scale, fps, _parse_rgb(background),
-                     _parse_size(size), camera, camera_amount, camera_path, ply_dir, target_mask, anchor,
-                     _parse_part_seeds(part_seed), preview, splats)
+                     _parse_size(size), camera, camera_amount, camera_path, ply_dir, target_mask, target_depth,
+                     anchor, _parse_part_seeds(part_seed), refine, preview, splats)
 
 
 def _transfer_and_render(prior, target: Path, output: Path, play: _Playback, session: _Session):
@@ -360,13 +386,14 @@ def _transfer_and_render(prior, target: Path, output: Path, play: _Playback, ses
     path_cameras = (None if play.camera_path is None
                     else load_camera_path(play.camera_path, output_length(prior.num_frames, play.speed, play.frames)))
     with session.reporter.stage("lifting target", 1) as progress:
-        lifted = pipeline.load_target(target, size=play.size, mask=play.target_mask, prior=prior)
+        lifted = pipeline.load_target(target, size=play.size, mask=play.target_mask, depth=play.target_depth,
+                                      prior=prior)
         progress(1, 1)
     with session.reporter.stage("transfer", 1) as progress:
         trajectory = pipeline.transfer(prior, lifted, frames=play.frames, speed=play.speed, loop=play.loop,
                                        reverse=play.reverse, rotation_scale=play.rotation_scale,
                                        translation_scale=play.translation_scale, anchor=play.anchor,
-                                       part_seeds=play.part_seeds)
+                                       part_seeds=play.part_seeds, refine=RefineOptions() if play.refine else None)
         progress(1, 1)
     cameras = path_cameras or pipeline.output_cameras(lifted, trajectory, play.camera, play.camera_amount)
     pipeline.render_video(output, lifted, trajectory, cameras, fps=play.fps or prior.fps,
@@ -393,12 +420,15 @@ def transfer(prior: Annotated[Path, typer.Argument(help="SpaT prior .npz.")],
              rotation_scale: RotationScale = 1.0, translation_scale: TranslationScale = 1.0, fps: Fps = None,
              background: Background = "1,1,1", size: Size = None, camera: CameraMove = "static",
              camera_amount: CameraAmount = None, camera_path: CameraPath = None, ply_dir: PlyDir = None,
-             target_mask: TargetMask = None, anchor: Anchor = "centroid", part_seed: PartSeed = None,
+             target_mask: TargetMask = None, target_depth: TargetDepth = None, anchor: Anchor = "centroid",
+             part_seed: PartSeed = None, refine: Refine = True,
              preview: Preview = None, splats: Splats = None, quiet: Quiet = False, verbose: Verbose = False,
              json_summary: Json = False, config: Config = None) -> None:
     """Apply a SpaT prior to a target image or .ply and render the video."""
-    play = _playback(output, target, frames, speed, loop, reverse, rotation_scale, translation_scale, fps, background, size,
-                     camera, camera_amount, camera_path, ply_dir, target_mask, anchor, part_seed, preview, splats)
+    play = _playback(output, target, frames, speed, loop, reverse, rotation_scale, translation_scale, fps,
+                     background, size,
+                     camera, camera_amount, camera_path, ply_dir, target_mask, target_depth, anchor, part_seed, refine,
+                     preview, splats)
     with _session("transfer", quiet, verbose, json_summary) as session:
         _transfer_and_render(read_prior(prior), target, output, play, session)
 
@@ -408,17 +438,20 @@ def run(source: Annotated[Path, typer.Argument(help="Video file or folder of fra
         target: Annotated[Path, typer.Argument(help="Target image (RGB/RGBA) or 3DGS .ply.")],
         output: Output, masks: Masks = None, depth: Depth = None, focal: Focal = None, parts: Parts = "1",
         start: Start = 0, end: End = None, stride: Stride = 1, max_side: MaxSide = pipeline.DEFAULT_MAX_SIDE,
-        smooth: Smooth = 1.0, plot: Plot = None,
+        max_pixels: MaxPixels = DEFAULT_MAX_PIXELS, smooth: Smooth = 1.0, plot: Plot = None,
         frames: Frames = None, speed: Speed = 1.0, loop: Loop = "hold", reverse: Reverse = False,
         rotation_scale: RotationScale = 1.0, translation_scale: TranslationScale = 1.0, fps: Fps = None,
         background: Background = "1,1,1", size: Size = None, camera: CameraMove = "static",
         camera_amount: CameraAmount = None, camera_path: CameraPath = None, ply_dir: PlyDir = None,
-        target_mask: TargetMask = None, anchor: Anchor = "centroid", part_seed: PartSeed = None,
+        target_mask: TargetMask = None, target_depth: TargetDepth = None, anchor: Anchor = "centroid",
+        part_seed: PartSeed = None, refine: Refine = True,
         preview: Preview = None, splats: Splats = None, side_by_side: SideBySide = None, report: Report = None,
         quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False, config: Config = None) -> None:
     """Extract the source's motion and transfer it onto the target in one go."""
-    play = _playback(output, target, frames, speed, loop, reverse, rotation_scale, translation_scale, fps, background, size,
-                     camera, camera_amount, camera_path, ply_dir, target_mask, anchor, part_seed, preview, splats)
+    play = _playback(output, target, frames, speed, loop, reverse, rotation_scale, translation_scale, fps,
+                     background, size,
+                     camera, camera_amount, camera_path, ply_dir, target_mask, target_depth, anchor, part_seed, refine,
+                     preview, splats)
     if side_by_side is not None:
         _video_output(side_by_side)
     if report is not None and report.suffix.lower() != ".json":
@@ -426,7 +459,8 @@ def run(source: Annotated[Path, typer.Argument(help="Video file or folder of fra
     if report is not None:
         check_output_path(report)
     with _session("run", quiet, verbose, json_summary) as session:
-        prior = _extract(source, masks, depth, focal, parts, start, end, stride, max_side, smooth, plot, session)
+        prior = _extract(source, masks, depth, focal, parts, start, end, stride, max_side, max_pixels, smooth, plot,
+                         session)
         trajectory = _transfer_and_render(prior, target, output, play, session)
         times = source_times(trajectory.num_frames, prior.num_frames - 1, speed=speed, loop=loop, reverse=reverse)
         if side_by_side is not None:

@@ -17,7 +17,15 @@ import numpy as np
 from .camera import Camera, focal_from_fov
 from .errors import InputError
 from .gaussians import Gaussians
-from .io import read_image, read_mask, read_masks, read_ply, read_video, write_ply, write_video
+from .io import (
+    read_image,
+    read_mask,
+    read_masks,
+    read_ply,
+    read_video,
+    write_ply,
+    write_video,
+)
 from .io.atomic import atomic_folder
 from .io.video import DEFAULT_MAX_PIXELS, open_video
 from .prior import SpatPrior
@@ -25,11 +33,12 @@ from .progress import Reporter
 from .render import render
 from .render.camera_path import camera_path, load_camera_path
 from .source import ExtractOptions, extract_prior
-from .source.depth import read_depths
+from .source.depth import read_depth_map, read_depths
 from .target.lift import LiftedTarget, LiftOptions, alpha_mask, lift_image
 from .trajectory import Trajectory
 from .transfer.controls import retime, scale_motion
 from .transfer.parts import labels_from_seeds, seeds_from_layout
+from .transfer.refine import RefineOptions
 from .transfer.velocity import integrate
 
 __all__ = ["extract", "load_target", "relative_depth", "check_target", "check_part_seeds", "transfer", "output_cameras", "fit_view",
@@ -99,14 +108,18 @@ def relative_depth(prior: SpatPrior, limits: tuple[float, float] = (2.0, 200.0))
 
 
 def load_target(target: str | Path, *, size: tuple[int, int] | None = None, mask: str | Path | None = None,
-                options: LiftOptions = LiftOptions(), prior: SpatPrior | None = None) -> LiftedTarget:
+                depth: str | Path | None = None, options: LiftOptions = LiftOptions(),
+                prior: SpatPrior | None = None) -> LiftedTarget:
     """Target image (RGB/RGBA) or 3DGS ``.ply`` → Gaussians with a reference camera.
 
     With a ``prior``, an image is lifted at the source's relative depth
     (:func:`relative_depth`) unless ``options`` sets one. ``mask`` is an
     image file marking the object (default: alpha, plain-background key,
     salient-object model, GrabCut; see
-    :func:`~marionette.target.lift.object_mask`). A ``.ply`` is taken
+    :func:`~marionette.target.lift.object_mask`). ``depth`` is a depth
+    map file of the image (16-bit PNG in millimetres, or ``.npy``; any
+    unit) that shapes the front surface instead of the inflated silhouette.
+    A ``.ply`` is taken
     as it is and viewed from the front (along +z) at ``size`` (512x512 by
     default).
     """
@@ -120,36 +133,43 @@ def load_target(target: str | Path, *, size: tuple[int, int] | None = None, mask
         mask = np.zeros((height, width), bool)
         mask[pix[z > 0, 1], pix[z > 0, 0]] = True
         return LiftedTarget(g, cam, mask, pix)
-    image, object_pixels = _read_target_image(path, mask)
+    image, object_pixels, depth_map = _read_target_image(path, mask, depth)
     if size is not None and (image.shape[1], image.shape[0]) != tuple(size):
         image = cv2.resize(image, tuple(size), interpolation=cv2.INTER_AREA)
         if object_pixels is not None:
             object_pixels = cv2.resize(object_pixels.view(np.uint8), tuple(size), interpolation=cv2.INTER_NEAREST) > 0
+        if depth_map is not None:  # nearest: depths of different surfaces never mix
+            depth_map = cv2.resize(depth_map, tuple(size), interpolation=cv2.INTER_NEAREST)
     if prior is not None and options.relative_depth is None:
         options = replace(options, relative_depth=relative_depth(prior))
-    return lift_image(image, mask=object_pixels, options=options)
+    return lift_image(image, mask=object_pixels, depth_map=depth_map, options=options)
 
 
-def _read_target_image(path: Path, mask: str | Path | None) -> tuple[np.ndarray, np.ndarray | None]:
-    """(H, W, 3|4) uint8 target image and its (H, W) bool mask file's content, if given; checked."""
+def _read_target_image(path: Path, mask: str | Path | None, depth: str | Path | None = None
+                       ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """(H, W, 3|4) uint8 target image, its (H, W) bool mask and (H, W) depth map files' content if given; checked."""
     image = read_image(path)
+    size = (image.shape[1], image.shape[0])
+    depth_map = None if depth is None else read_depth_map(depth, size)
     if mask is None:
         alpha_mask(image)  # a fully transparent image is refused here
-        return image, None
+        return image, None, depth_map
     object_pixels = read_mask(mask)
     if object_pixels.shape != image.shape[:2]:
         raise InputError(f"target mask {Path(mask).name} is {object_pixels.shape[1]}x{object_pixels.shape[0]} "
                          f"but the target image is {image.shape[1]}x{image.shape[0]}")
-    return image, object_pixels
+    return image, object_pixels, depth_map
 
 
-def check_target(target: str | Path, mask: str | Path | None = None) -> None:
-    """Reject a target (and its mask file) that cannot be lifted, before any long work starts."""
+def check_target(target: str | Path, mask: str | Path | None = None, depth: str | Path | None = None) -> None:
+    """Reject a target (and its mask and depth files) that cannot be lifted, before any long work starts."""
     path = Path(target)
     if path.suffix.lower() == ".ply":
+        if mask is not None or depth is not None:
+            raise InputError("a target mask or depth map applies to an image target, not to a .ply")
         read_ply(path)
     else:
-        _read_target_image(path, mask)
+        _read_target_image(path, mask, depth)
 
 
 def check_part_seeds(prior: SpatPrior, part_seeds: dict[int, tuple[float, float]]) -> None:
@@ -162,7 +182,8 @@ def check_part_seeds(prior: SpatPrior, part_seeds: dict[int, tuple[float, float]
 def transfer(prior: SpatPrior, target: LiftedTarget, *, frames: int | None = None, speed: float = 1.0,
              loop: str = "hold", reverse: bool = False, rotation_scale: float = 1.0,
              translation_scale: float = 1.0, anchor: str = "centroid",
-             part_seeds: dict[int, tuple[float, float]] | None = None) -> Trajectory:
+             part_seeds: dict[int, tuple[float, float]] | None = None,
+             refine: RefineOptions | None = RefineOptions()) -> Trajectory:
     """Move the target as the prior's parts move; (T, N, 3) trajectory out.
 
     With ``anchor="centroid"`` the motion is taken as seen by a source camera
@@ -172,6 +193,8 @@ def transfer(prior: SpatPrior, target: LiftedTarget, *, frames: int | None = Non
     the scales multiply its rotation angles and centre displacements.
     Parts are assigned by geodesic flood fill from ``part_seeds`` (part →
     target pixel x, y), or from seeds matched to the source's part layout.
+    With several parts, ``refine`` (None: off) refines the velocity field
+    and turns the parts about their joints (:mod:`~marionette.transfer.refine`).
     """
     prior = retime(prior, speed=speed, frames=frames, loop=loop, reverse=reverse)
     prior = scale_motion(prior, rotation=rotation_scale, translation=translation_scale)
@@ -185,7 +208,7 @@ def transfer(prior: SpatPrior, target: LiftedTarget, *, frames: int | None = Non
         labels = labels_from_seeds(target.gaussians.means, target.pixel_of, seeds)
     else:
         labels = np.zeros(len(target.gaussians), np.int32)  # one part, or no layout stored: the largest part
-    return integrate(target.gaussians.means, labels, prior, anchor=anchor)
+    return integrate(target.gaussians.means, labels, prior, anchor=anchor, refine=refine)
 
 
 def output_cameras(target: LiftedTarget, trajectory: Trajectory, move: str = "static", amount: float | None = None,

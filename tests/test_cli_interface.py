@@ -152,3 +152,17 @@ def test_eval_command_and_run_report_give_motion_fidelity(tmp_path, clip, target
     assert main(["eval", str(clip / "frames"), str(backwards), "--masks", str(clip / "masks")]) == 0
     reversed_fidelity = float(capsys.readouterr().out.split()[-1])
     assert reversed_fidelity < figures["motion_fidelity"] - 0.5
+
+
+def test_target_depth_map_option(tmp_path, prior_file, target_png, capsys):
+    xx = np.mgrid[:64, :64][1].astype(np.float32)
+    np.save(tmp_path / "depth.npy", 2.0 + 0.05 * xx)
+    flat, shaped = tmp_path / "flat.mp4", tmp_path / "shaped.mp4"
+    for out, extra in ((flat, []), (shaped, ["--target-depth", str(tmp_path / "depth.npy")])):
+        assert main(["transfer", str(prior_file), str(target_png), "-o", str(out), "-q", "--frames", "4"] + extra) == 0
+    assert not np.array_equal(read_video(flat).frames[-1], read_video(shaped).frames[-1])
+    np.save(tmp_path / "small.npy", np.ones((10, 20), np.float32))
+    assert main(["transfer", str(prior_file), str(target_png), "-o", str(tmp_path / "x.mp4"),
+                 "--target-depth", str(tmp_path / "small.npy")]) == 2
+    assert "small.npy" in one_error_line(capsys)
+    assert not (tmp_path / "x.mp4").exists()

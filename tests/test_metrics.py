@@ -47,3 +47,17 @@ def test_rigidity_error_of_a_uniform_stretch_and_jerk_of_a_cubic():
     cubic = [pts + shift * t**3 for t in range(5)]
     radius = np.sqrt(((pts - pts.mean(axis=0)) ** 2).sum(axis=1).mean())
     assert trajectory_quality(make_trajectory(cubic, np.zeros(200))).jerk == pytest.approx(6 / radius, rel=1e-5)
+
+
+def test_a_hinge_opening_keeps_contact_but_a_lid_flying_off_tears():
+    xs = np.arange(0, 1.0, 0.05)
+    body = np.stack(np.meshgrid(xs, xs, np.arange(-0.2, 0, 0.05), indexing="ij"), axis=-1).reshape(-1, 3)
+    lid = body + [0, 0, 0.25]
+    labels = np.repeat([0, 1], len(body))
+    hinge = np.array([0.0, 0.0, 0.025])  # axis along y at the seam's x = 0 edge
+    opened = [np.concatenate([body, (lid - hinge) @ axis_angle_to_matrix([0, -a, 0]).T + hinge])
+              for a in np.linspace(0, np.pi / 2, 8)]
+    q = trajectory_quality(make_trajectory(opened, labels))
+    assert q.boundary_separation == 0.0  # most seam edges stretch, but the hinge line holds
+    flown = [np.concatenate([body, lid + [0, 0, 0.1 * t]]) for t in range(8)]
+    assert trajectory_quality(make_trajectory(flown, labels)).boundary_separation > 0.9

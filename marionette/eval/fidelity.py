@@ -82,7 +82,9 @@ def _object_masks(frames: np.ndarray, masks: np.ndarray | None) -> np.ndarray:
     border = np.concatenate([frames[:, 0], frames[:, -1], frames[:, :, 0], frames[:, :, -1]], axis=1)
     if np.median(border.min(axis=2)) >= 245:
         return white_background_masks(frames)
-    from ..source.foreground import auto_masks  # the salient-object model loads only when needed
+    from ..source.foreground import (
+        auto_masks,  # the salient-object model loads only when needed
+    )
 
     return auto_masks(frames)
 

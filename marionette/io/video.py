@@ -13,12 +13,12 @@ import contextlib
 import itertools
 import logging
 import math
-import os
+import operator
 import re
-import shutil
 import subprocess
 import tempfile
-from collections.abc import Iterable, Iterator
+import warnings
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
@@ -29,12 +29,23 @@ import numpy as np
 from PIL import Image, ImageSequence
 
 from ..errors import InputError
-from .atomic import atomic_path
+from .atomic import atomic_folder, atomic_path
 
-__all__ = ["Video", "read_video", "read_masks", "read_mask", "read_image", "write_video", "write_image"]
+__all__ = ["Video", "VideoFrames", "PackedMasks", "open_video", "read_video", "read_masks", "read_mask", "read_image",
+           "write_video", "write_image"]
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv", ".flv", ".gif")
+#: Most pixels of all frames together (T x H x W) of a video opened by
+#: :func:`open_video`; more are downscaled. What extraction keeps grows with it
+#: (masks, tracks): 2**29 is 1036 frames of 960 x 540, 1310 of 854 x 480, and
+#: keeps ``marionette extract`` within 2 GB (docs/benchmarks/memory.md).
+DEFAULT_MAX_PIXELS = 2**29
+#: Shortest frame side :func:`open_video` downscales to.
+_MIN_SIDE = 16
+#: Most pixels of one image :func:`read_image` decodes (a guard against
+#: decompression bombs: an RGBA image of this size takes 512 MiB).
+MAX_IMAGE_PIXELS = 2**27
 #: Frame rate of a folder of frames when none is given.
 DEFAULT_FOLDER_FPS = 30.0
 #: Frame rate of a GIF whose frames carry no delay (what browsers show).
@@ -50,12 +61,13 @@ _FRAME_NAME = re.compile(r"\d{5,}\.png")
 
 @dataclass(frozen=True)
 class Video:
-    """Decoded frames of a video or a folder of frames.
+    """Frames of a video or a folder of frames.
 
     Attributes
     ----------
-    frames : (T, H, W, 3) uint8
-        RGB frames, T >= 2.
+    frames : (T, H, W, 3) uint8 ndarray, or VideoFrames
+        RGB frames, T >= 2: decoded (:func:`read_video`) or decoded on
+        demand (:func:`open_video`).
     fps : float
         Frame rate.
     scale : float
@@ -68,7 +80,7 @@ class Video:
         frame range or stride was selected).
     """
 
-    frames: np.ndarray
+    frames: np.ndarray | VideoFrames
     fps: float
     scale: float
     names: list[str]
@@ -87,6 +99,112 @@ class Video:
         return self.frames.shape[2], self.frames.shape[1]
 
 
+class VideoFrames:
+    """The frames of a video, decoded on demand: a read-only (T, H, W, 3) uint8 sequence.
+
+    ``frames[t]`` decodes frame t (resized to the video's size); a pass in
+    order decodes each frame once, and asking for a frame before the last one
+    opens the source again. Only the last frame is kept. ``np.asarray(frames)``
+    decodes them all. Made by :func:`open_video`.
+    """
+
+    dtype = np.dtype(np.uint8)
+    ndim = 4
+
+    def __init__(self, open_stream: Callable[[], Iterator[np.ndarray]], count: int, size: tuple[int, int]) -> None:
+        self._open = open_stream
+        self.shape = (count, size[1], size[0], 3)
+        self._stream: Iterator[np.ndarray] | None = None
+        self._next = 0  # frame number the stream yields next
+        self._last: tuple[int, np.ndarray | None] = (-1, None)
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __getitem__(self, t: int) -> np.ndarray:
+        """Frame ``t`` (H, W, 3) uint8; negative indices count from the end."""
+        count = self.shape[0]
+        t = operator.index(t)
+        t = t + count if t < 0 else t
+        if not 0 <= t < count:
+            raise IndexError(f"frame {t} out of range for a video of {count} frames")
+        if t == self._last[0]:
+            return self._last[1]
+        if self._stream is None or t < self._next:
+            self.close()
+            self._stream, self._next = self._open(), 0
+        for _ in range(t - self._next):
+            next(self._stream)
+        frame = next(self._stream)
+        self._next = t + 1
+        h, w = self.shape[1:3]
+        if frame.shape[:2] != (h, w):
+            frame = cv2.resize(frame, (w, h), interpolation=cv2.INTER_AREA)
+        frame.flags.writeable = False  # the same array is handed out again for the same t
+        self._last = (t, frame)
+        return frame
+
+    def __iter__(self) -> Iterator[np.ndarray]:
+        return (self[t] for t in range(len(self)))
+
+    def __array__(self, dtype=None, copy=None) -> np.ndarray:
+        frames = np.stack(list(self))
+        return frames if dtype is None else frames.astype(dtype)
+
+    def close(self) -> None:
+        """Stop the decoder (it is opened again when a frame is asked for)."""
+        if self._stream is not None:
+            self._stream.close()
+        self._stream, self._next, self._last = None, 0, (-1, None)
+
+
+class PackedMasks:
+    """(T, H, W) bool masks stored as packed bits, an eighth of a bool array; frames unpack on demand.
+
+    ``masks[t]`` is a fresh (H, W) bool array; ``masks[t] = mask`` stores one;
+    ``np.asarray(masks)`` unpacks all.
+    """
+
+    dtype = np.dtype(bool)
+    ndim = 3
+
+    def __init__(self, count: int, height: int, width: int) -> None:
+        self.shape = (count, height, width)
+        self._bits = np.zeros((count, -(-height * width // 8)), np.uint8)
+
+    @classmethod
+    def from_array(cls, masks: np.ndarray) -> PackedMasks:
+        """Pack (T, H, W) masks (non-zero = object)."""
+        out = cls(*masks.shape)
+        for t, mask in enumerate(masks):
+            out[t] = mask
+        return out
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __getitem__(self, t: int) -> np.ndarray:
+        h, w = self.shape[1:]
+        return np.unpackbits(self._bits[t], count=h * w).view(bool).reshape(h, w)
+
+    def __setitem__(self, t: int, mask: np.ndarray) -> None:
+        if np.shape(mask) != self.shape[1:]:
+            raise ValueError(f"mask of shape {self.shape[1:]} expected, got {np.shape(mask)}")
+        self._bits[t] = np.packbits(np.asarray(mask, dtype=bool).ravel())
+
+    def __iter__(self) -> Iterator[np.ndarray]:
+        return (self[t] for t in range(len(self)))
+
+    def __array__(self, dtype=None, copy=None) -> np.ndarray:
+        h, w = self.shape[1:]
+        masks = np.unpackbits(self._bits, axis=1, count=h * w).view(bool).reshape(self.shape)
+        return masks if dtype is None else masks.astype(dtype)
+
+    def any(self) -> bool:
+        """Whether any mask has an object pixel."""
+        return bool(self._bits.any())
+
+
 # ---------------------------------------------------------------- reading
 
 
@@ -101,6 +219,68 @@ def read_video(source: str | Path, *, max_side: int | None = None, fps: float | 
     ``max_side`` are downscaled (``cv2.INTER_AREA``) to a long side of
     ``max_side``. ``fps`` overrides the frame rate: the file's own rate, or
     30 for a folder. Raises :class:`InputError` for anything unreadable.
+    All frames are decoded into memory; :func:`open_video` decodes them on demand.
+    """
+    source, stream, rate = _open_source(source, max_side, fps, start, end, stride)
+    frames, names, indices, target, scale = [], [], [], None, 1.0
+    for index, name, frame in _same_size(source, stream()):
+        if target is None:
+            target, scale = _target_size(frame.shape[1], frame.shape[0], max_side)
+        frames.append(frame if frame.shape[1::-1] == target else
+                      cv2.resize(frame, target, interpolation=cv2.INTER_AREA))
+        names.append(name)
+        indices.append(index)
+    _check_count(source, len(frames), (start, end, stride))
+    return Video(frames=np.stack(frames), fps=rate, scale=scale, names=names, indices=indices)
+
+
+def open_video(source: str | Path, *, max_side: int | None = None, max_pixels: int | None = DEFAULT_MAX_PIXELS,
+               fps: float | None = None, start: int = 0, end: int | None = None, stride: int = 1) -> Video:
+    """Open a video like :func:`read_video`, with frames decoded on demand (:class:`VideoFrames`).
+
+    One pass decodes the selected frames to count and check them, keeping
+    none. ``max_pixels`` bounds the pixels of all frames together (T x H x W,
+    after ``max_side``): a longer or larger video is downscaled further so
+    that it fits, with a warning (what is kept per pixel downstream, masks
+    and tracks, then stays bounded). None: no bound.
+
+    Warns
+    -----
+    UserWarning
+        When the video is downscaled to fit ``max_pixels``.
+    """
+    if max_pixels is not None and (isinstance(max_pixels, bool) or not isinstance(max_pixels, (int, np.integer))
+                                   or max_pixels < 1):
+        raise InputError(f"max_pixels must be a positive integer, got {max_pixels!r}")
+    source, stream, rate = _open_source(source, max_side, fps, start, end, stride)
+    names, indices, size = [], [], None
+    for index, name, frame in _same_size(source, stream()):
+        size = size or frame.shape[1::-1]
+        names.append(name)
+        indices.append(index)
+    _check_count(source, len(names), (start, end, stride))
+    count, (width, height) = len(names), size
+    target, scale = _target_size(width, height, max_side)
+    if max_pixels is not None and count * target[0] * target[1] > max_pixels:
+        side = math.floor(max(width, height) * math.sqrt(max_pixels / (count * width * height)))
+        while side > 1 and count * math.prod(_scaled_size(width, height, side)) > max_pixels:
+            side -= 1  # the short side was rounded up
+        smaller, scale = _target_size(width, height, max(side, 1))
+        if min(smaller) < _MIN_SIDE:
+            raise InputError(f"{source}: {count} frames do not fit max_pixels={max_pixels} even at "
+                             f"{smaller[0]}x{smaller[1]}; select fewer frames (start, end, stride)")
+        warnings.warn(f"{source}: {count} frames of {target[0]}x{target[1]} exceed the limit of {max_pixels} "
+                      f"pixels in all; downscaled to {smaller[0]}x{smaller[1]}", stacklevel=2)
+        target = smaller
+    frames = VideoFrames(lambda: (frame for _, _, frame in stream()), count, target)
+    return Video(frames=frames, fps=rate, scale=scale, names=names, indices=indices)
+
+
+def _open_source(source: str | Path, max_side: int | None, fps: float | None, start: int, end: int | None,
+                 stride: int) -> tuple[Path, Callable[[], Iterator[tuple[int, str, np.ndarray]]], float]:
+    """Check a video's arguments → (path, a function opening a pass over its selected frames, frame rate).
+
+    A pass yields ``(frame number in the source, name, (H, W, 3) uint8 frame)``.
     """
     source = Path(source)
     if max_side is not None and (not isinstance(max_side, (int, np.integer)) or max_side < 1):
@@ -116,27 +296,49 @@ def read_video(source: str | Path, *, max_side: int | None = None, fps: float | 
         if not files:
             raise InputError(f"{source} holds no images ({', '.join(IMAGE_SUFFIXES)})")
         indices = list(range(len(files)))[selection]
-        stream = ((files[i].name, read_image(files[i])[..., :3]) for i in indices)  # alpha, if any, is dropped
+
+        def stream() -> Iterator[tuple[int, str, np.ndarray]]:
+            return ((i, files[i].name, read_image(files[i])[..., :3]) for i in indices)  # alpha, if any, is dropped
+
         native_fps = DEFAULT_FOLDER_FPS
     elif source.suffix.lower() in VIDEO_SUFFIXES:
         frames_of = _gif_frames if source.suffix.lower() == ".gif" else _ffmpeg_frames
-        all_frames, native_fps = frames_of(source)
-        stream = itertools.islice(all_frames, selection.start, selection.stop, selection.step)
+        first, native_fps = frames_of(source)
+
+        def stream() -> Iterator[tuple[int, str, np.ndarray]]:
+            nonlocal first
+            frames, first = first or frames_of(source)[0], None  # the reader opened to check the file comes first
+            picked = itertools.islice(frames, selection.start, selection.stop, selection.step)
+            return ((int(name), name, frame) for name, frame in picked)
     else:
         raise InputError(f"{source}: unsupported video format '{source.suffix}' "
                          f"(use {', '.join(VIDEO_SUFFIXES)} or a folder of frames)")
+    return source, stream, float(fps or native_fps / selection.step)
 
-    frames, names, scale = _collect(source, stream, max_side)
-    if len(frames) < 2:
-        chosen = "" if (start, end, stride) == (0, None, 1) else " in the selected range"
-        raise InputError(f"{source} has {len(frames)} frame(s){chosen}; a video needs at least 2")
-    if source.is_dir():
-        names_out = names
-    else:
-        indices = list(range(selection.start, selection.start + selection.step * len(frames), selection.step))
-        names_out = [str(i) for i in indices]
-    return Video(frames=np.stack(frames), fps=float(fps or native_fps / selection.step), scale=scale,
-                 names=names_out, indices=indices[:len(frames)])
+
+def _same_size(source: Path, stream: Iterator[tuple[int, str, np.ndarray]]) -> Iterator[tuple[int, str, np.ndarray]]:
+    """Pass the frames of ``stream`` on, raising InputError when one differs in size from the first."""
+    first = None
+    for index, name, frame in stream:
+        h, w = frame.shape[:2]
+        if first is None:
+            first = (w, h, name)
+        elif (w, h) != first[:2]:
+            raise InputError(f"{source}: frame {name} is {w}x{h} but frame {first[2]} is {first[0]}x{first[1]}")
+        yield index, name, frame
+
+
+def _target_size(width: int, height: int, max_side: int | None) -> tuple[tuple[int, int], float]:
+    """Size (W, H) of frames of ``width`` x ``height`` brought to a long side of at most ``max_side``, and the scale."""
+    if max_side is None or max(width, height) <= max_side:
+        return (width, height), 1.0
+    return _scaled_size(width, height, max_side), max_side / max(width, height)
+
+
+def _check_count(source: Path, count: int, selection: tuple[int, int | None, int]) -> None:
+    if count < 2:
+        chosen = "" if selection == (0, None, 1) else " in the selected range"
+        raise InputError(f"{source} has {count} frame(s){chosen}; a video needs at least 2")
 
 
 def _frame_selection(start: int, end: int | None, stride: int) -> slice:
@@ -150,7 +352,7 @@ def _frame_selection(start: int, end: int | None, stride: int) -> slice:
 
 
 def read_masks(folder: str | Path, *, count: int, size: tuple[int, int],
-               indices: list[int] | None = None) -> np.ndarray:
+               indices: list[int] | None = None, packed: bool = False) -> np.ndarray | PackedMasks:
     """Read ``count`` per-frame object masks of ``size`` (W, H) → (T, H, W) bool.
 
     One image per frame in natural name order; a pixel is object where any
@@ -160,6 +362,7 @@ def read_masks(folder: str | Path, *, count: int, size: tuple[int, int],
     the video was read with a frame range (``indices``: its frame numbers,
     :attr:`Video.indices`), a folder with a mask for every source frame is
     sampled the same way; one with exactly ``count`` masks is taken as it is.
+    ``packed``: return :class:`PackedMasks` (an eighth of the memory).
     """
     folder = Path(folder)
     if not folder.is_dir():
@@ -171,7 +374,7 @@ def read_masks(folder: str | Path, *, count: int, size: tuple[int, int],
     if len(files) != count:
         raise InputError(f"{folder} holds {len(files)} masks but the video has {count} frames")
     width, height = size
-    masks = np.empty((count, height, width), dtype=bool)
+    masks = PackedMasks(count, height, width) if packed else np.empty((count, height, width), dtype=bool)
     for t, file in enumerate(files):
         mask = _mask_from_image(read_image(file), lossy=file.suffix.lower() in (".jpg", ".jpeg"))
         h0, w0 = mask.shape
@@ -199,12 +402,21 @@ def read_image(path: str | Path) -> np.ndarray:
     suffix = path.suffix.lower()
     if suffix not in IMAGE_SUFFIXES:
         raise InputError(f"{path}: unsupported image format '{path.suffix}' (use {', '.join(IMAGE_SUFFIXES)})")
+    if path.stat().st_size > 8 * MAX_IMAGE_PIXELS:  # more than 16-bit RGBA of the largest image uncompressed
+        raise InputError(f"image {path} is larger than {8 * MAX_IMAGE_PIXELS >> 20} MiB")
+    _check_pixel_count(path)
     # JPEGs have neither alpha nor 16 bits; IMREAD_COLOR applies their EXIF orientation
     flags = cv2.IMREAD_COLOR if suffix in (".jpg", ".jpeg") else cv2.IMREAD_UNCHANGED
+    level = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)  # its log on a corrupt file is ours to give
     try:
         image = cv2.imdecode(np.fromfile(path, dtype=np.uint8), flags)
     except cv2.error:
         image = None
+    except OSError as exc:
+        raise InputError(f"cannot read image {path}: {exc.strerror}") from None
+    finally:
+        cv2.utils.logging.setLogLevel(level)
     if image is None:
         raise InputError(f"cannot read image {path} (corrupt or not a {suffix[1:].upper()} file)")
 
@@ -221,6 +433,22 @@ def read_image(path: str | Path) -> np.ndarray:
     if image.shape[2] == 4:
         return cv2.cvtColor(image, cv2.COLOR_BGRA2RGBA)
     raise InputError(f"{path}: unsupported number of channels {image.shape[2]}")
+
+
+def _check_pixel_count(path: Path) -> None:
+    """Refuse an image whose header declares more than :data:`MAX_IMAGE_PIXELS`, before decoding it."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(path) as image:
+                width, height = image.size
+    except Image.DecompressionBombError as exc:  # beyond Pillow's own limit, so beyond ours
+        raise InputError(f"image {path} is too large: {_one_line(exc)}") from None
+    except Exception:  # Pillow raises many types on files it cannot parse; OpenCV then tries and reports
+        return
+    if width * height > MAX_IMAGE_PIXELS:
+        raise InputError(f"image {path} is {width}x{height}, more than the limit of {MAX_IMAGE_PIXELS} pixels; "
+                         "downscale it first")
 
 
 def _image_files(folder: Path) -> list[Path]:
@@ -260,27 +488,6 @@ def _scaled_size(width: int, height: int, max_side: int) -> tuple[int, int]:
     """Size (W, H) after scaling the long side to ``max_side`` (rule of :func:`read_video`)."""
     scale = max_side / max(width, height)
     return max(1, round(width * scale)), max(1, round(height * scale))
-
-
-def _collect(source: Path, stream: Iterator[tuple[str, np.ndarray]],
-             max_side: int | None) -> tuple[list[np.ndarray], list[str], float]:
-    """Downscale and size-check frames as they arrive → (frames, names, scale)."""
-    frames: list[np.ndarray] = []
-    names: list[str] = []
-    scale, first, target = 1.0, None, None
-    for name, frame in stream:
-        h, w = frame.shape[:2]
-        if first is None:
-            first, target = (w, h, name), (w, h)
-            if max_side is not None and max(w, h) > max_side:
-                scale, target = max_side / max(w, h), _scaled_size(w, h, max_side)
-        elif (w, h) != first[:2]:
-            raise InputError(f"{source}: frame {name} is {w}x{h} but frame {first[2]} is {first[0]}x{first[1]}")
-        if (w, h) != target:
-            frame = cv2.resize(frame, target, interpolation=cv2.INTER_AREA)
-        frames.append(frame)
-        names.append(name)
-    return frames, names, scale
 
 
 def _gif_frames(path: Path) -> tuple[Iterator[tuple[str, np.ndarray]], float]:
@@ -485,41 +692,14 @@ def _write_gif(path: Path, frames: Iterator[np.ndarray], fps: float) -> None:
 
 
 def _write_frame_folder(path: Path, frames: Iterator[np.ndarray]) -> None:
-    """Write ``00000.png, …`` into a temporary folder, then rename it onto ``path``.
+    """Write ``00000.png, …`` into a folder that appears complete or not at all.
 
     An existing folder at ``path`` is replaced only if it is empty or holds
     nothing but frames of this form (an earlier output).
     """
-    parent = path.parent
-    if not parent.is_dir():
-        raise InputError(f"output folder {parent} does not exist")
-    if not os.access(parent, os.W_OK):
-        raise InputError(f"output folder {parent} is not writable")
-    if path.exists() and not path.is_dir():
-        raise InputError(f"{path} is a file; a folder of frames needs a new or existing folder path")
-    if path.is_dir():
-        others = sorted(f.name for f in path.iterdir() if not _FRAME_NAME.fullmatch(f.name))
-        if others:
-            raise InputError(f"output folder {path} is not empty (it holds {others[0]}); "
-                             "give a new or empty folder")
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=parent))
-    try:
+    with atomic_folder(path, _FRAME_NAME.pattern) as tmp:
         for t, frame in enumerate(frames):
             (tmp / f"{t:05d}.png").write_bytes(_encode(frame, ".png"))
-        if path.is_dir():
-            old = tmp.with_name(tmp.name + ".old")
-            os.replace(path, old)
-            try:
-                os.replace(tmp, path)
-            except BaseException:
-                os.replace(old, path)
-                raise
-            shutil.rmtree(old)
-        else:
-            os.replace(tmp, path)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
 
 
 def _check_fps(fps: float) -> float:

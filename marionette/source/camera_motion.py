@@ -33,6 +33,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..geometry import invert_transform, make_transform
+from ..io.video import PackedMasks
 from .tracks import Tracks, _check_video, track
 
 __all__ = ["CameraMotion", "estimate_camera_motion", "to_world"]
@@ -156,7 +157,9 @@ def estimate_camera_motion(frames: np.ndarray, object_masks: np.ndarray, K: np.n
         raise InputError(f"K must be a 3x3 intrinsics matrix with positive focal lengths, got {k.tolist()}")
     num_frames = len(frames)
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin + 1,) * 2)
-    background = np.stack([cv2.dilate(m.view(np.uint8), disc) == 0 for m in object_masks])
+    background = PackedMasks(num_frames, *object_masks[0].shape)  # bits, not bools: long videos stay small
+    for t, mask in enumerate(object_masks):
+        background[t] = cv2.dilate(mask.view(np.uint8), disc) == 0
     tracks = track(frames, background, spacing=spacing, min_eigen=min_eigen, refine=False)
     identity = np.tile(np.eye(4), (num_frames, 1, 1))
     displacement = _displacement(tracks)

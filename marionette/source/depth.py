@@ -32,7 +32,7 @@ from ..geometry import make_transform, transform_points, umeyama
 from ..io.video import _natural_key, _scaled_size
 from .tracks import Tracks
 
-__all__ = ["DEPTH_SUFFIXES", "read_depths", "poses_from_depth"]
+__all__ = ["DEPTH_SUFFIXES", "DepthMaps", "read_depths", "read_depth_map", "poses_from_depth"]
 
 #: Depth map files: 16-bit PNG in millimetres, NumPy float maps.
 DEPTH_SUFFIXES = (".png", ".npy", ".npz")
@@ -67,8 +67,58 @@ def _load_depth(file: Path) -> np.ndarray:
     return data.astype(np.float32)
 
 
+class DepthMaps:
+    """Depth maps read from their files on demand: a read-only (T, H, W) float32 sequence.
+
+    ``depths[t]`` reads and converts map t as :func:`read_depths` does (which
+    checked every map once); ``np.asarray(depths)`` reads them all.
+    """
+
+    dtype = np.dtype(np.float32)
+    ndim = 3
+
+    def __init__(self, files: list[Path], size: tuple[int, int]) -> None:
+        self._files, self._size = files, size
+        self.shape = (len(files), size[1], size[0])
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __getitem__(self, t: int) -> np.ndarray:
+        return read_depth_map(self._files[t], self._size)
+
+    def __array__(self, dtype=None, copy=None) -> np.ndarray:
+        depths = np.stack([self[t] for t in range(len(self))])
+        return depths if dtype is None else depths.astype(dtype)
+
+
+def read_depth_map(file: str | Path, size: tuple[int, int]) -> np.ndarray:
+    """One checked depth map (H, W) float32 of ``size`` (W, H), NaN where unknown.
+
+    Formats and rules as for :func:`read_depths`; a map at the original
+    resolution of downscaled frames is resized (nearest neighbour).
+    """
+    file = Path(file)
+    if not file.is_file():
+        raise InputError(f"depth map {file} does not exist")
+    width, height = size
+    depth = _load_depth(file)
+    if np.isinf(depth).any():
+        raise InputError(f"depth map {file.name} contains infinite values")
+    h0, w0 = depth.shape
+    if (w0, h0) != (width, height):
+        if _scaled_size(w0, h0, max(width, height)) != (width, height):
+            raise InputError(f"depth map {file.name} is {w0}x{h0} but the frames are {width}x{height}")
+        depth = cv2.resize(depth, (width, height), interpolation=cv2.INTER_NEAREST)
+    with np.errstate(invalid="ignore"):
+        depth = np.where(depth > 0, depth, np.nan).astype(np.float32, copy=False)
+    if np.isnan(depth).all():
+        raise InputError(f"depth map {file.name} has no valid (positive) depth")
+    return depth
+
+
 def read_depths(folder: str | Path, *, count: int, size: tuple[int, int],
-                indices: list[int] | None = None) -> np.ndarray:
+                indices: list[int] | None = None, lazy: bool = False) -> np.ndarray | DepthMaps:
     """Read ``count`` per-frame depth maps of ``size`` (W, H) → (T, H, W) float32.
 
     One file per frame in natural name order: 16-bit single-channel PNGs in
@@ -80,7 +130,9 @@ def read_depths(folder: str | Path, *, count: int, size: tuple[int, int],
     downscaled video are resized (nearest neighbour, so that depths of
     different surfaces never mix). ``indices`` (the video's frame numbers
     when read with a frame range) selects maps from a folder holding one per
-    source frame, as :func:`~marionette.io.video.read_masks` does.
+    source frame, as :func:`~marionette.io.video.read_masks` does. ``lazy``:
+    check every map, keep none, and return :class:`DepthMaps` that read them
+    again when asked.
 
     Raises
     ------
@@ -100,21 +152,13 @@ def read_depths(folder: str | Path, *, count: int, size: tuple[int, int],
     if len(files) != count:
         raise InputError(f"{folder} holds {len(files)} depth maps ({', '.join(DEPTH_SUFFIXES)}) "
                          f"but the video has {count} frames")
-    width, height = size
-    depths = np.empty((count, height, width), np.float32)
+    if lazy:
+        for file in files:
+            read_depth_map(file, size)
+        return DepthMaps(files, size)
+    depths = np.empty((count, size[1], size[0]), np.float32)
     for t, file in enumerate(files):
-        depth = _load_depth(file)
-        if np.isinf(depth).any():
-            raise InputError(f"depth map {file.name} contains infinite values")
-        h0, w0 = depth.shape
-        if (w0, h0) != (width, height):
-            if _scaled_size(w0, h0, max(width, height)) != (width, height):
-                raise InputError(f"depth map {file.name} is {w0}x{h0} but the frames are {width}x{height}")
-            depth = cv2.resize(depth, (width, height), interpolation=cv2.INTER_NEAREST)
-        with np.errstate(invalid="ignore"):
-            depths[t] = np.where(depth > 0, depth, np.nan)
-        if np.isnan(depths[t]).all():
-            raise InputError(f"depth map {file.name} has no valid (positive) depth")
+        depths[t] = read_depth_map(file, size)
     return depths
 
 
@@ -171,8 +215,9 @@ def poses_from_depth(tracks: Tracks, depths: np.ndarray, K: np.ndarray, *, thres
     ----------
     tracks : Tracks
         Object tracks over T frames (one rigid part).
-    depths : (T, H, W) float
-        z-depth per pixel; non-finite or non-positive = unknown.
+    depths : (T, H, W) float, or DepthMaps
+        z-depth per pixel; non-finite or non-positive = unknown. Read once
+        per frame, in order.
     K : (3, 3) float64
         Camera intrinsics.
     threshold : float
@@ -195,35 +240,39 @@ def poses_from_depth(tracks: Tracks, depths: np.ndarray, K: np.ndarray, *, thres
         Frame-0 points to frame t, in each frame's camera coordinates and
         the depth maps' unit; ``poses[0]`` is identity.
     """
-    depths = np.asarray(depths)
+    depths = depths if isinstance(depths, DepthMaps) else np.asarray(depths)
     k = np.asarray(K, dtype=np.float64)
     if depths.ndim != 3 or len(depths) != tracks.num_frames:
         raise InputError(f"depths must be (T, H, W) with T = {tracks.num_frames} frames, got {depths.shape}")
     if k.shape != (3, 3) or not np.all(np.isfinite(k)) or k[0, 0] <= 0 or k[1, 1] <= 0:
         raise InputError(f"K must be a 3x3 intrinsics matrix with positive focal lengths, got {k.tolist()}")
     num_frames, num_tracks = tracks.visible.shape
-    points = np.full((num_frames, num_tracks, 3), np.nan)  # lifted tracks, NaN where unknown
-    for t in range(num_frames):
+
+    def lift(t: int) -> np.ndarray:
+        """(M, 3) tracks of frame t lifted with its depth, NaN where unknown."""
+        points = np.full((num_tracks, 3), np.nan)
         vis = np.nonzero(tracks.visible[t])[0]
         uv = tracks.uv[t, vis].astype(np.float64)
         rays = np.concatenate([uv, np.ones((len(vis), 1))], axis=1) @ np.linalg.inv(k).T
-        points[t, vis] = _sample_depth(depths[t], uv, edge)[:, None] * rays  # Eq. 1: X = d K^-1 [u, v, 1]
+        points[vis] = _sample_depth(depths[t], uv, edge)[:, None] * rays  # Eq. 1: X = d K^-1 [u, v, 1]
+        return points
 
-    reference = points[0].copy()  # (M, 3) each track's point at frame 0, in frame-0 coordinates
+    reference = lift(0)  # (M, 3) each track's point at frame 0, in frame-0 coordinates
     poses = np.tile(np.eye(4), (num_frames, 1, 1))
     rng = np.random.default_rng(seed)
     held = []
     for t in range(1, num_frames):
-        lifted = np.isfinite(points[t, :, 0])
+        points = lift(t)
+        lifted = np.isfinite(points[:, 0])
         usable = lifted & np.isfinite(reference[:, 0])
         if usable.sum() >= max(min_points, 3):
-            scale = threshold * np.median(points[t, usable, 2])
-            poses[t] = _ransac_rigid(reference[usable], points[t, usable], scale, iterations, rng)
+            scale = threshold * np.median(points[usable, 2])
+            poses[t] = _ransac_rigid(reference[usable], points[usable], scale, iterations, rng)
         else:
             poses[t] = poses[t - 1]
             held.append(t)
         fresh = lifted & ~np.isfinite(reference[:, 0])
-        reference[fresh] = transform_points(np.linalg.inv(poses[t]), points[t, fresh])
+        reference[fresh] = transform_points(np.linalg.inv(poses[t]), points[fresh])
     if held:
         warnings.warn(f"too few tracks with depth at {len(held)} frames (first {held[0]}): "
                       "their pose repeats the previous frame's", stacklevel=2)

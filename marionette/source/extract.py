@@ -35,10 +35,11 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..errors import InputError
+from ..io.video import PackedMasks, VideoFrames
 from ..prior import SpatPrior
 from ..progress import ProgressCallback, Reporter
 from .camera_motion import estimate_camera_motion, to_world
-from .depth import poses_from_depth
+from .depth import DepthMaps, poses_from_depth
 from .foreground import auto_masks
 from .parts import OFF_OBJECT, OUTLIER, STATIC, segment_parts
 from .rigid import RigidOptions, ShapePrior, carved_centroid, fit_rigid
@@ -183,23 +184,25 @@ def _depth_shape(mask: np.ndarray, depth: np.ndarray, k: np.ndarray, relief: flo
     return ShapePrior.from_depths(front, back, k)
 
 
-def extract_prior(frames: np.ndarray, masks: np.ndarray | None, camera_K: np.ndarray, fps: float, *,
-                  depths: np.ndarray | None = None, options: ExtractOptions = ExtractOptions(),
-                  reporter: Reporter | None = None) -> SpatPrior:
+def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMasks | None, camera_K: np.ndarray,
+                  fps: float, *, depths: np.ndarray | DepthMaps | None = None,
+                  options: ExtractOptions = ExtractOptions(), reporter: Reporter | None = None) -> SpatPrior:
     """Extract the SpaT prior of a rigidly moving object (one or more parts) from a video.
 
     Parameters
     ----------
-    frames : ndarray, shape (T, H, W, 3), uint8
-        RGB frames, T >= 2.
-    masks : ndarray, shape (T, H, W), bool or integer, or None
+    frames : ndarray, shape (T, H, W, 3), uint8, or VideoFrames
+        RGB frames, T >= 2. Frames decoded on demand
+        (:func:`~marionette.io.video.open_video`) are read in a few passes in
+        order and never held together.
+    masks : ndarray, shape (T, H, W), bool or integer, PackedMasks, or None
         Object masks (non-zero = object); frame 0's must not be empty. None:
-        found automatically.
+        found automatically (and kept packed).
     camera_K : ndarray, shape (3, 3)
         Intrinsics of the source camera.
     fps : float
         Source frame rate.
-    depths : ndarray, shape (T, H, W), float, optional
+    depths : ndarray, shape (T, H, W), float, or DepthMaps, optional
         Per-frame depth maps (z, any unit; non-positive or NaN = unknown):
         the paper's lifting path. Poses and radii are then in their unit.
     options : ExtractOptions
@@ -225,13 +228,13 @@ def extract_prior(frames: np.ndarray, masks: np.ndarray | None, camera_K: np.nda
         identity prior is returned), or when the pose of some frames could not
         be estimated (they are interpolated).
     """
-    frames = np.asarray(frames)
+    frames = frames if isinstance(frames, VideoFrames) else np.asarray(frames)
     k = _check_inputs(camera_K, fps, depths, frames.shape[:3])
     stages = _Stages(reporter or Reporter(quiet=True))
     start = time.perf_counter()
     if masks is None:
         with stages("foreground", "finding the object", len(frames)) as progress:
-            masks = auto_masks(frames, progress=progress)
+            masks = auto_masks(frames, packed=True, progress=progress)
     frames, masks = _check_video(frames, masks)
     num_frames, h, w = masks.shape
     if num_frames < 2:

@@ -54,13 +54,15 @@ Flow and motion are computed at a reduced working size (long side
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable
+from collections import OrderedDict
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
 from ..errors import InputError
+from ..io.video import PackedMasks, VideoFrames
 from ..segment import SalientModel, refine_with_grabcut
 from ..segment._grabcut import keep_main_object
 from ..segment._u2net import default_model
@@ -75,6 +77,9 @@ _RANSAC_PX = 1.0
 _MIN_SAMPLES = 50
 #: A salient component kept whole is cut beyond this many ``reach`` of a moving pixel.
 _WHOLE_REACH = 3
+#: Bytes of optical flow kept per direction; longer videos recompute flows
+#: that fell out of the cache (each stage visits them in order).
+_FLOW_CACHE_BYTES = 2**27
 
 
 @dataclass(frozen=True)
@@ -133,14 +138,40 @@ class ForegroundOptions:
             raise InputError(f"foreground: whole_fraction must lie in (0, 1], got {self.whole_fraction}")
 
 
-def _check_frames(frames: np.ndarray) -> None:
-    """Raise InputError unless ``frames`` is a (T, H, W, 3) uint8 array with T >= 2 and H, W >= 16."""
-    if not isinstance(frames, np.ndarray) or frames.ndim != 4 or frames.shape[3] != 3:
+def _check_frames(frames: np.ndarray | VideoFrames) -> None:
+    """Raise InputError unless ``frames`` is (T, H, W, 3) uint8, T >= 2 and H, W >= 16 (an array or VideoFrames)."""
+    if not isinstance(frames, (np.ndarray, VideoFrames)) or frames.ndim != 4 or frames.shape[3] != 3:
         raise InputError(f"frames must be an array (T, H, W, 3), got shape {np.shape(frames)}")
     if frames.dtype != np.uint8:
         raise InputError(f"frames must be uint8, got {frames.dtype}")
     if frames.shape[0] < 2 or min(frames.shape[1:3]) < 16:
         raise InputError(f"frames must hold at least 2 frames of at least 16x16 pixels, got shape {frames.shape}")
+
+
+class _Flows:
+    """Dense optical flow between neighbouring frames, computed on demand: ``flows[t]`` (h, w, 2) float32.
+
+    Forward flows go from frame t to t+1 in frame t's grid, backward ones from
+    t+1 to t in frame t+1's grid. The ``keep`` most recently used are cached.
+    """
+
+    def __init__(self, grey: np.ndarray, *, forward: bool, keep: int) -> None:
+        self._grey, self._forward, self._keep = grey, forward, keep  # grey: (T, h, w) uint8
+        self._dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+        self._cache: OrderedDict[int, np.ndarray] = OrderedDict()
+
+    def __len__(self) -> int:
+        return len(self._grey) - 1
+
+    def __getitem__(self, t: int) -> np.ndarray:
+        if t in self._cache:
+            self._cache.move_to_end(t)
+            return self._cache[t]
+        a, b = (t, t + 1) if self._forward else (t + 1, t)
+        flow = self._cache[t] = self._dis.calc(self._grey[a], self._grey[b], None)
+        if len(self._cache) > self._keep:
+            self._cache.popitem(last=False)
+        return flow
 
 
 @functools.lru_cache(maxsize=4)
@@ -194,44 +225,66 @@ def _moving(residual: np.ndarray, options: ForegroundOptions) -> np.ndarray:
     return cv2.morphologyEx(moving, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)).astype(bool)
 
 
-def _carry(maps: np.ndarray, fwd: np.ndarray, bwd: np.ndarray, radius: int) -> np.ndarray:
-    """Union (max) of each frame's map with its neighbours' within ``radius`` frames, carried along the flow.
+def _carry(maps, fwd, bwd, radius: int, out: np.ndarray | PackedMasks | None = None) -> np.ndarray | PackedMasks:
+    """(T, h, w) bool: where the union (max) of each frame's map and its neighbours' exceeds 0.5.
 
-    maps : (T, h, w) float32; fwd, bwd : (T-1, h, w, 2) flows t → t+1 and t+1 → t.
+    The neighbours are those within ``radius`` frames, carried along the flow.
+    maps : (T, h, w) float or bool (an array or PackedMasks); fwd, bwd :
+    sequences of T-1 flows (h, w, 2) t → t+1 and t+1 → t (arrays or
+    :class:`_Flows`); out : (T, h, w) bool to write into (default: a new
+    array). Frame by frame, so only a few maps and flows are in use at once.
     """
-    out = maps.copy()
-    later, earlier = maps, maps  # maps of frame t + j and t - j, carried into frame t
-    for _ in range(radius):
-        later = np.stack([_warp(later[t + 1], fwd[t]) for t in range(len(fwd))] + [np.zeros_like(maps[0])])
-        earlier = np.stack([np.zeros_like(maps[0])] + [_warp(earlier[t], bwd[t]) for t in range(len(bwd))])
-        out = np.maximum(out, np.maximum(later, earlier))
+    T = len(maps)
+    out = np.empty((T,) + maps[0].shape, bool) if out is None else out
+    for t in range(T):
+        union = maps[t].astype(np.float32)
+        for j in range(1, radius + 1):
+            if t + j < T:  # frame t + j's map, carried back step by step
+                carried = maps[t + j].astype(np.float32)
+                for s in range(t + j - 1, t - 1, -1):
+                    carried = _warp(carried, fwd[s])
+                union = np.maximum(union, carried)
+            if t - j >= 0:
+                carried = maps[t - j].astype(np.float32)
+                for s in range(t - j, t):
+                    carried = _warp(carried, bwd[s])
+                union = np.maximum(union, carried)
+        out[t] = union > 0.5
     return out
 
 
-def _propagate(keys: dict[int, np.ndarray], fwd: np.ndarray, bwd: np.ndarray) -> np.ndarray:
-    """(T, h, w) maps from key-frame maps ``{t: (h, w) float32}`` carried along the flow.
+def _propagated(keys: dict[int, np.ndarray], fwd, bwd) -> Iterator[np.ndarray]:
+    """Maps (h, w) bool of frames 0 … T-1 in order, from key-frame maps ``{t: (h, w) float32}`` along the flow.
 
     Each frame between two key frames blends the previous key's map carried
     forward and the next key's carried backward, weighted by closeness;
-    frames before the first or after the last key take that key's map.
+    frames before the first or after the last key take that key's map. A
+    pixel is True where the blend reaches 0.5. fwd, bwd as in :func:`_carry`.
     """
     T = len(fwd) + 1
 
-    def carried(start: int, stop: int) -> list[np.ndarray]:
+    def carried(start: int, stop: int) -> Iterator[np.ndarray]:
         """The map of key ``start`` carried to each frame from ``start`` to ``stop`` (inclusive)."""
-        maps, step = [keys[start]], 1 if stop >= start else -1
+        current, step = keys[start], 1 if stop >= start else -1
+        yield current
         for t in range(start, stop, step):
-            maps.append(_warp(maps[-1], bwd[t] if step > 0 else fwd[t - 1]))
-        return maps
+            current = _warp(current, bwd[t] if step > 0 else fwd[t - 1])
+            yield current
 
     order = sorted(keys)
-    out = np.empty((T,) + keys[order[0]].shape, np.float32)
-    out[:order[0] + 1] = carried(order[0], 0)[::-1]
-    out[order[-1]:] = carried(order[-1], T - 1)
+    yield from (m >= 0.5 for m in list(carried(order[0], 0))[::-1])
     for a, b in zip(order[:-1], order[1:]):
-        weight = np.linspace(0.0, 1.0, b - a + 1, dtype=np.float32)[:, None, None]
-        out[a:b + 1] = (1 - weight) * np.stack(carried(a, b)) + weight * np.stack(carried(b, a)[::-1])
-    return out
+        weight = np.linspace(0.0, 1.0, b - a + 1, dtype=np.float32)
+        backward = list(carried(b, a))[::-1]
+        for i, forward in enumerate(carried(a, b)):
+            if i:  # frame a was given by the previous interval
+                yield (1 - weight[i]) * forward + weight[i] * backward[i] >= 0.5
+    yield from (m >= 0.5 for m in list(carried(order[-1], T - 1))[1:])
+
+
+def _propagate(keys: dict[int, np.ndarray], fwd, bwd) -> np.ndarray:
+    """(T, h, w) bool: :func:`_propagated` as one array."""
+    return np.stack(list(_propagated(keys, fwd, bwd)))
 
 
 def _combine(salient: np.ndarray, moving: np.ndarray, reach: int, whole_fraction: float) -> np.ndarray:
@@ -273,14 +326,19 @@ def _clean(mask: np.ndarray) -> np.ndarray:
     return keep_main_object(mask) if mask.any() else mask
 
 
-def auto_masks(frames: np.ndarray, *, key_every: int = 8, options: ForegroundOptions | None = None,
-               model: SalientModel | None = None,
-               progress: Callable[[int, int], None] | None = None) -> np.ndarray:
+def auto_masks(frames: np.ndarray | VideoFrames, *, key_every: int = 8, options: ForegroundOptions | None = None,
+               model: SalientModel | None = None, packed: bool = False,
+               progress: Callable[[int, int], None] | None = None) -> np.ndarray | PackedMasks:
     """Foreground masks of the moving object in a video, from saliency and motion.
+
+    The frames are read once, in order (twice with GrabCut); what is kept of
+    the whole video is at the working size (a greyscale image and packed
+    masks per frame), and flows are recomputed when they fall out of a
+    bounded cache.
 
     Parameters
     ----------
-    frames : ndarray, shape (T, H, W, 3), uint8
+    frames : ndarray, shape (T, H, W, 3), uint8, or VideoFrames
         RGB video frames, T >= 2.
     key_every : int
         The salient-object model runs on every ``key_every``-th frame and the last one.
@@ -288,12 +346,14 @@ def auto_masks(frames: np.ndarray, *, key_every: int = 8, options: ForegroundOpt
         Motion thresholds, windows and clean-up; defaults documented there.
     model : SalientModel, optional
         The salient-object network; the packaged U²-Netp by default.
+    packed : bool
+        Return :class:`~marionette.io.video.PackedMasks` (an eighth of the memory).
     progress : callable(done, total), optional
-        Called as flows, key frames and masks are done.
+        Called as frames, flows and masks are done.
 
     Returns
     -------
-    ndarray, shape (T, H, W), bool
+    ndarray, shape (T, H, W), bool, or PackedMasks
         Object mask per frame.
 
     Raises
@@ -310,8 +370,8 @@ def auto_masks(frames: np.ndarray, *, key_every: int = 8, options: ForegroundOpt
     T, H, W = frames.shape[:3]
     scale = min(1.0, options.work_side / max(H, W))
     w, h = max(16, round(W * scale)), max(16, round(H * scale))
-    keys = sorted(set(range(0, T, key_every)) | {T - 1})
-    total, done = 2 * (T - 1) + len(keys) + T, 0
+    keys = set(range(0, T, key_every)) | {T - 1}
+    total, done = T + 2 * (T - 1) + T, 0
 
     def advance() -> None:
         nonlocal done
@@ -319,52 +379,58 @@ def auto_masks(frames: np.ndarray, *, key_every: int = 8, options: ForegroundOpt
         if progress is not None:
             progress(done, total)
 
-    grey = [cv2.resize(cv2.cvtColor(f, cv2.COLOR_RGB2GRAY), (w, h), interpolation=cv2.INTER_AREA) for f in frames]
-    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
-    fwd = np.empty((T - 1, h, w, 2), np.float32)  # flow t → t+1, in frame t's grid
-    bwd = np.empty((T - 1, h, w, 2), np.float32)  # flow t+1 → t, in frame t+1's grid
-    for t in range(T - 1):
-        fwd[t] = dis.calc(grey[t], grey[t + 1], None)
+    grey = np.empty((T, h, w), np.uint8)
+    salient_keys = {}
+    for t in range(T):
+        frame = frames[t]
+        grey[t] = cv2.resize(cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY), (w, h), interpolation=cv2.INTER_AREA)
+        if t in keys:
+            prob = model.predict(frame, normalize=False)
+            salient_keys[t] = cv2.resize(prob, (w, h), interpolation=cv2.INTER_AREA)
         advance()
-        bwd[t] = dis.calc(grey[t + 1], grey[t], None)
-        advance()
-
-    salient = {}
-    for t in keys:
-        prob = model.predict(frames[t], normalize=False)
-        salient[t] = cv2.resize(prob, (w, h), interpolation=cv2.INTER_AREA)
-        advance()
-    salient = _propagate(salient, fwd, bwd) >= 0.5
+    keep = max(_FLOW_CACHE_BYTES // (8 * h * w), key_every + 2 * max(options.motion_window, options.union_radius) + 2)
+    fwd = _Flows(grey, forward=True, keep=keep)  # flow t → t+1, in frame t's grid
+    bwd = _Flows(grey, forward=False, keep=keep)  # flow t+1 → t, in frame t+1's grid
 
     # The background motion is fitted away from salient things (and their flow-blurred rims).
     reach = max(1, round(options.reach * max(w, h)))
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * reach + 1,) * 2)
-    background = [~cv2.dilate(s.astype(np.uint8), disc).astype(bool) for s in salient]
-    res_fwd = [_background_residual(fwd[t], background[t]) for t in range(T - 1)]
-    res_bwd = [_background_residual(bwd[t], background[t + 1]) for t in range(T - 1)]
-    # Residual of frame t: the smaller of its forward and backward ones (see _moving).
-    residual = [res_fwd[0]] + [np.minimum(res_fwd[t], res_bwd[t - 1]) for t in range(1, T - 1)] + [res_bwd[-1]]
-    moving = np.stack([_moving(r, options) for r in residual]).astype(np.float32)
-    moving = _carry(moving, fwd, bwd, options.motion_window) > 0.5
+    salient, moving = PackedMasks(T, h, w), PackedMasks(T, h, w)
+    previous = res_bwd = None  # frame t-1's background, and its backward residual
+    for t, mask in enumerate(_propagated(salient_keys, fwd, bwd)):
+        salient[t] = mask
+        background = ~cv2.dilate(mask.astype(np.uint8), disc).astype(bool)
+        if t:  # the pair t-1 → t, with both frames' saliency known
+            res_fwd = _background_residual(fwd[t - 1], previous)
+            # Residual of frame t-1: the smaller of its forward and backward ones (see _moving).
+            moving[t - 1] = _moving(res_fwd if res_bwd is None else np.minimum(res_fwd, res_bwd), options)
+            res_bwd = _background_residual(bwd[t - 1], background)
+            advance()
+            advance()
+        previous = background
+    moving[T - 1] = _moving(res_bwd, options)
+    moving = _carry(moving, fwd, bwd, options.motion_window, out=PackedMasks(T, h, w))
 
-    if moving.any():
-        masks = np.stack([_combine(s, m, reach, options.whole_fraction) for s, m in zip(salient, moving)])
-    else:  # a static scene: saliency alone
-        masks = salient
-    masks = np.stack([_clean(m) for m in masks])
-    found = masks.any(axis=(1, 2))
+    masks = PackedMasks(T, h, w)
+    anything_moves = moving.any()
+    for t in range(T):  # without motion anywhere (a static scene), saliency alone
+        masks[t] = _clean(_combine(salient[t], moving[t], reach, options.whole_fraction) if anything_moves
+                          else salient[t])
+    found = np.array([m.any() for m in masks])
     if not found.any():
         raise InputError("could not find a moving object; pass --masks DIR")
     if not found.all():  # frames where neither cue found the object take their neighbours' masks
-        filled = _propagate({t: masks[t].astype(np.float32) for t in np.nonzero(found)[0]}, fwd, bwd)
-        masks[~found] = filled[~found] >= 0.5
+        edges = found & ~(np.r_[found[1:], True] & np.r_[True, found[:-1]])  # found next to not found
+        filled = _propagate({t: masks[t].astype(np.float32) for t in np.nonzero(edges)[0]}, fwd, bwd)
+        for t in np.nonzero(~found)[0]:
+            masks[t] = filled[t]
     if options.grabcut:
-        masks = np.stack([_snap_to_edges(cv2.resize(f, (w, h), interpolation=cv2.INTER_AREA), m, reach)
-                          for f, m in zip(frames, masks)])
+        for t in range(T):
+            masks[t] = _snap_to_edges(cv2.resize(frames[t], (w, h), interpolation=cv2.INTER_AREA), masks[t], reach)
     if options.union_radius:
-        masks = _carry(masks.astype(np.float32), fwd, bwd, options.union_radius) > 0.5
+        masks = _carry(masks, fwd, bwd, options.union_radius, out=PackedMasks(T, h, w))
 
-    out = np.empty((T, H, W), bool)
+    out = PackedMasks(T, H, W) if packed else np.empty((T, H, W), bool)
     for t in range(T):
         out[t] = cv2.resize(masks[t].astype(np.float32), (W, H), interpolation=cv2.INTER_LINEAR) >= 0.5
         advance()

@@ -44,6 +44,7 @@ import numba
 import numpy as np
 
 from ..errors import InputError
+from ..io.video import PackedMasks, VideoFrames
 
 __all__ = ["Tracks", "track"]
 
@@ -107,19 +108,24 @@ class Tracks:
         return self.uv.shape[1]
 
 
-def _check_video(frames: np.ndarray, masks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Validate frames (T, H, W, 3) uint8 and masks (T, H, W); masks → bool (non-zero = object)."""
-    if not isinstance(frames, np.ndarray) or frames.ndim != 4 or frames.shape[3] != 3:
+def _check_video(frames: np.ndarray | VideoFrames,
+                 masks: np.ndarray | PackedMasks) -> tuple[np.ndarray | VideoFrames, np.ndarray | PackedMasks]:
+    """Validate frames (T, H, W, 3) uint8 and masks (T, H, W); array masks → bool (non-zero = object).
+
+    Frames may be decoded on demand (:class:`~marionette.io.video.VideoFrames`)
+    and masks packed (:class:`~marionette.io.video.PackedMasks`).
+    """
+    if not isinstance(frames, (np.ndarray, VideoFrames)) or frames.ndim != 4 or frames.shape[3] != 3:
         raise InputError(f"frames must be an array (T, H, W, 3), got shape {np.shape(frames)}")
     if frames.dtype != np.uint8:
         raise InputError(f"frames must be uint8, got {frames.dtype}")
     if frames.shape[0] < 1 or min(frames.shape[1:3]) < 8:
         raise InputError(f"frames must hold at least one frame of at least 8x8 pixels, got shape {frames.shape}")
-    if not isinstance(masks, np.ndarray) or masks.shape != frames.shape[:3]:
+    if not isinstance(masks, (np.ndarray, PackedMasks)) or masks.shape != frames.shape[:3]:
         raise InputError(f"masks must be an array {frames.shape[:3]} matching frames, got shape {np.shape(masks)}")
     if masks.dtype != bool and not np.issubdtype(masks.dtype, np.integer):
         raise InputError(f"masks must be bool or integer (non-zero = object), got {masks.dtype}")
-    masks = masks.astype(bool, copy=False)
+    masks = masks if isinstance(masks, PackedMasks) else masks.astype(bool, copy=False)
     if not masks[0].any():
         raise InputError("the object mask of frame 0 is empty")
     return frames, masks
@@ -534,9 +540,9 @@ def track(frames: np.ndarray, masks: np.ndarray, *, spacing: int = 6, window: in
 
     Parameters
     ----------
-    frames : ndarray, shape (T, H, W, 3), uint8
-        RGB video frames.
-    masks : ndarray, shape (T, H, W), bool or integer
+    frames : ndarray, shape (T, H, W, 3), uint8, or VideoFrames
+        RGB video frames, read once in order.
+    masks : ndarray, shape (T, H, W), bool or integer, or PackedMasks
         Object masks per frame (non-zero = object).
     spacing : int
         Seed grid spacing in pixels (one seed per ``spacing`` x ``spacing`` cell).
@@ -608,7 +614,8 @@ def track(frames: np.ndarray, masks: np.ndarray, *, spacing: int = 6, window: in
     anchor = np.zeros(len(pts), np.int64)  # (N,) frame each track is aligned against
     anchor_pts = pts.astype(np.float64)  # (N, 2) its position there
     warp = np.tile(np.eye(2), (len(pts), 1, 1))  # (N, 2, 2) affine from that frame's window to the current one
-    images = {0: (prev, prev_mask)}  # normalised image and mask of the anchor frames in use
+    # Normalised image and mask (bool: a quarter of float32) of the anchor frames in use, when refining.
+    images = {0: (prev, masks[0])} if refine else {}
     starts = [np.zeros(len(pts), np.int64)]
     history = [(ids, pts)]  # per frame: (ids, positions) of the visible tracks
     for t in range(1, num_frames):
@@ -618,7 +625,9 @@ def track(frames: np.ndarray, masks: np.ndarray, *, spacing: int = 6, window: in
             fwd = _refine_masked(prev, cur, prev_mask, pts, fwd[:, 0], window) if refine else fwd[:, 0]
             for a in np.unique(anchor) if refine else ():
                 sel = np.nonzero(anchor == a)[0]
-                p, aff, res = _align_affine(*images[a], cur, anchor_pts[sel], fwd[sel], warp[sel], window)
+                ref, ref_mask = images[a]
+                p, aff, res = _align_affine(ref, ref_mask.astype(np.float32), cur, anchor_pts[sel], fwd[sel],
+                                            warp[sel], window)
                 det = np.linalg.det(aff)
                 good = ((res < _ANCHOR_RESIDUAL) & (np.linalg.norm(p - fwd[sel], axis=1) < _ANCHOR_SHIFT)
                         & (det > 0.25) & (det < 4.0))
@@ -644,8 +653,9 @@ def track(frames: np.ndarray, masks: np.ndarray, *, spacing: int = 6, window: in
             anchor_pts = np.concatenate([anchor_pts, new])
             warp = np.concatenate([warp, np.tile(np.eye(2), (len(new), 1, 1))])
             starts.append(np.full(len(new), t, np.int64))
-        images[t] = (cur, cur_mask)
-        images = {a: images[a] for a in np.unique(anchor)}
+        if refine:
+            images[t] = (cur, masks[t])
+            images = {a: images[a] for a in np.unique(anchor)}
         history.append((ids, pts.astype(np.float32)))
         prev, prev_grey, prev_mask = cur, cur_grey, cur_mask
         if progress is not None:

@@ -16,6 +16,20 @@ target size over source size ``s``::
 
 which is the same rigid step when the target is the source (``s = 1``,
 ``g = c``). ``anchor="world"`` keeps the paper's literal Eq. 5.
+
+Joints (ours, ``RefineOptions.joints``): a part turning about its own centre
+drifts away from the part it is attached to (a lid turning about its middle
+leaves the box). With joints on, parts that touch (share k-nearest-neighbour
+edges) form a tree rooted at the steadiest part; the root moves as above and
+every other part turns about its joint with its parent, which moves with the
+parent::
+
+    μ_{t+1} = R_t (μ_t − j_t) + j_{t+1},   j_{t+1} = parent's step applied to j_t
+
+The joint is the least-squares fixed point of the two source parts' relative
+motion, placed at the same offset from the child's centre (in units of its
+size) on the target and snapped to the nearest Gaussian of the pair's
+boundary band. The child's own translation is dropped: the joint fixes it.
 """
 
 from __future__ import annotations
@@ -23,10 +37,12 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError
+from ..geometry import rotation_angle_deg
 from ..prior import SpatPrior
 from ..trajectory import Trajectory
+from .refine import RefineOptions, Refiner
 
-__all__ = ["velocity_step", "integrate", "part_radii"]
+__all__ = ["integrate", "joint_tree", "part_radii", "velocity_step"]
 
 
 def part_radii(means: np.ndarray, labels: np.ndarray, num_parts: int) -> tuple[np.ndarray, np.ndarray]:
@@ -59,8 +75,60 @@ def velocity_step(means: np.ndarray, rotation: np.ndarray, translation: np.ndarr
     return (means - anchor_from) @ rotation.T + anchor_to - means
 
 
+def _source_joint(prior: SpatPrior, k: int, l: int) -> np.ndarray:
+    """(3,) point the source poses of parts k and l move alike: argmin_p Σ_t |T_k(t) p − T_l(t) p|².
+
+    A small pull towards the midpoint of the two centres picks one point when
+    the motion leaves a line (a hinge axis) or everything (no relative motion) free.
+    """
+    a = prior.poses[k, :, :3, :3] - prior.poses[l, :, :3, :3]  # (T, 3, 3)
+    b = prior.poses[l, :, :3, 3] - prior.poses[k, :, :3, 3]
+    mid = (prior.centroids[k, 0] + prior.centroids[l, 0]) / 2
+    pull = 1e-3 * np.sqrt(prior.num_frames)
+    lhs = np.concatenate([a.reshape(-1, 3), pull * np.eye(3)])
+    rhs = np.concatenate([b.ravel(), pull * mid])
+    return np.linalg.lstsq(lhs, rhs, rcond=None)[0]
+
+
+def joint_tree(means: np.ndarray, labels: np.ndarray, prior: SpatPrior, near: np.ndarray,
+               min_edges: int = 5) -> tuple[list[int], np.ndarray, np.ndarray]:
+    """Parts in tree order, each part's parent (P,) (-1 for a root) and joint rest position (P, 3).
+
+    means : (N, 3) rest positions; labels : (N,) parts; near : (N, k) nearest
+    neighbours of each Gaussian. Parts touch when at least ``min_edges``
+    neighbour pairs join them; roots are the parts that move least in the
+    prior (rotation in radians plus centre travel in radii).
+    """
+    p = prior.num_parts
+    a, b = np.repeat(labels, near.shape[1]), labels[near.ravel()]
+    touching = np.bincount(a * p + b, minlength=p * p).reshape(p, p) >= min_edges
+    np.fill_diagonal(touching, False)
+    touching &= touching.T
+    angles = np.radians([[rotation_angle_deg(r) for r in part] for part in prior.rotations]).sum(axis=1)
+    travel = np.linalg.norm(np.diff(prior.centroids, axis=1), axis=2).sum(axis=1) / prior.radii
+    motion = angles + travel
+    cents, radii = part_radii(means, labels, p)
+    parent, joints, order = np.full(p, -1), np.zeros((p, 3)), []
+    for root in np.argsort(motion, kind="stable"):
+        if root in order:
+            continue
+        order.append(int(root))
+        for k in order[order.index(root):]:  # breadth first; `order` grows while we walk it
+            for l in np.nonzero(touching[k])[0]:
+                if l in order:
+                    continue
+                guess = cents[l] + (_source_joint(prior, k, l) - prior.centroids[l, 0]) * radii[l] / prior.radii[l]
+                seam = (labels == k) & (labels[near] == l).any(axis=1) | (labels == l) & (labels[near] == k).any(axis=1)
+                cand = np.nonzero(seam)[0]
+                joints[l] = means[cand[np.argmin(np.linalg.norm(means[cand] - guess, axis=1))]]
+                parent[l] = k
+                order.append(int(l))
+    return order, parent, joints
+
+
 def integrate(means: np.ndarray, labels: np.ndarray, prior: SpatPrior, *, anchor: str = "centroid",
-              translation_scale: np.ndarray | float | None = None) -> Trajectory:
+              translation_scale: np.ndarray | float | None = None,
+              refine: RefineOptions | None = None) -> Trajectory:
     """Euler-integrate the prior's velocity field from rest positions.
 
     Parameters
@@ -74,6 +142,10 @@ def integrate(means: np.ndarray, labels: np.ndarray, prior: SpatPrior, *, anchor
         size) or "world" (the paper's literal Eq. 5).
     translation_scale : (P,) or float, optional
         Override of the target-over-source size ratio ``s``.
+    refine : RefineOptions, optional
+        Refine each step's velocities (:mod:`~marionette.transfer.refine`) and,
+        with ``joints`` and the centroid anchor, turn parts about their joints.
+        Ignored for one part: there is nothing to refine.
 
     Returns
     -------
@@ -89,22 +161,35 @@ def integrate(means: np.ndarray, labels: np.ndarray, prior: SpatPrior, *, anchor
     cents, radii = part_radii(means, labels, p)
     scale = radii / prior.radii if translation_scale is None else np.broadcast_to(translation_scale, (p,))
     members = [np.nonzero(labels == k)[0] for k in range(p)]
+    refiner = Refiner(means, labels, refine) if refine is not None and p > 1 else None
+    order, parent = list(range(p)), np.full(p, -1)
+    if refiner is not None and refine.joints and anchor == "centroid":
+        order, parent, joints = joint_tree(means, labels, prior, refiner.near)
 
     out = np.empty((t_count, len(means), 3), dtype=np.float32)
     rots = np.empty((t_count, p, 3, 3))
     out[0], rots[0] = means, np.eye(3)
     mu = means.copy()
+    pivot_from, pivot_to = np.zeros((p, 3)), np.zeros((p, 3))
     for t in range(t_count - 1):
         v = np.zeros_like(mu)
-        for k, idx in enumerate(members):
-            r, d = prior.rotations[k, t], prior.translations[k, t]
+        for k in order:
+            idx, r, d = members[k], prior.rotations[k, t], prior.translations[k, t]
             if anchor == "world":
                 v[idx] = velocity_step(mu[idx], r, d)
             else:
-                g_next = cents[k] + scale[k] * (prior.centroids[k, t + 1] - prior.centroids[k, t])
-                v[idx] = velocity_step(mu[idx], r, d, cents[k], g_next)
-                cents[k] = g_next
+                if parent[k] < 0:
+                    g_next = cents[k] + scale[k] * (prior.centroids[k, t + 1] - prior.centroids[k, t])
+                    pivot_from[k], pivot_to[k], cents[k] = cents[k], g_next, g_next
+                else:  # the joint rides on the parent, which has already stepped
+                    q = parent[k]
+                    pivot_from[k] = joints[k]
+                    pivot_to[k] = joints[k] = prior.rotations[q, t] @ (joints[k] - pivot_from[q]) + pivot_to[q]
+                v[idx] = velocity_step(mu[idx], r, d, pivot_from[k], pivot_to[k])
             rots[t + 1, k] = r @ rots[t, k]
-        mu = mu + v  # Euler step, paper Eq. 6
+        if refiner is not None:
+            mu = refiner.project(mu + refiner.velocity(v))
+        else:
+            mu = mu + v  # Euler step, paper Eq. 6
         out[t + 1] = mu
     return Trajectory(out, rots.astype(np.float32), labels.astype(np.int32))

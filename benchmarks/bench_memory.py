@@ -1,0 +1,153 @@
+"""Peak memory and per-stage time of ``marionette extract`` on a long 480p video.
+
+Builds (once, cached in ``--cache``) a synthetic 1000-frame 854x480 clip of an
+oscillating box (``make_scene``) as an H.264 mp4 plus a folder of PNG masks,
+then runs ``marionette extract`` on it in a subprocess, with the masks and
+without them (automatic foreground), and reports the peak resident set size
+of that process (``wait4``'s ``ru_maxrss``) with the wall time of each stage
+(the prior's ``timings`` metadata; "reading" is what the run spent outside
+``extract_prior``: start-up, decoding, mask reading). Writes
+``docs/benchmarks/memory.md``.
+
+    python benchmarks/bench_memory.py [--frames 1000] [--size 854x480] [--cases masks,auto]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+from marionette.io import read_prior, write_image, write_video  # noqa: E402 (after OPENBLAS_NUM_THREADS)
+from marionette.synthetic import make_scene  # noqa: E402
+
+BUDGET_MB = 2048
+OUT = Path(__file__).resolve().parents[1] / "docs" / "benchmarks" / "memory.md"
+
+
+NOTES = """## Where the memory goes
+
+Before streaming (commit 29d1055), `marionette extract` decoded the whole
+video into one array and every stage worked on whole-video arrays. For this
+clip: frames (T, H, W, 3) uint8 1.23 GB, masks (T, H, W) bool 0.41 GB, and
+without masks the foreground's optical flows, both directions, (T-1, h, w, 2)
+float32 at the 480 x 270 working size, 2.07 GB, plus several (T, h, w) float32
+maps of 0.52 GB each. Measured then, on the same machine: with masks at
+least 2622 MB (the high-water mark when stopped after 44 min in the pose
+stage); without masks the frames and flows alone pass 3.3 GB.
+
+Now:
+
+- frames are decoded on demand (`open_video` → `VideoFrames`): one pass to
+  count and check them, then one pass per stage that needs pixels
+  (foreground, object tracking, background tracking), each in order; only
+  the current frame is held;
+- masks are packed bits (`PackedMasks`, 51 MB here) and unpacked per frame;
+- the foreground keeps one greyscale frame per frame at the working size
+  (130 MB here) and packed masks; flows are computed on demand with a
+  bounded cache (128 MB per direction) and recomputed by later stages when
+  they fell out of it; saliency is propagated and the background residuals
+  are computed in the same pass, frame by frame;
+- depth maps (`--depth`) are checked once and read again per frame
+  (`DepthMaps`), and lifted one frame at a time.
+
+What still grows with T x H x W: the packed masks, the background masks of
+the camera-motion stage (`estimate_camera_motion` stacks them as bool,
+0.41 GB here: the largest single item left), and the tracking's anchor
+images (one normalised float32 image and mask per frame still anchoring a
+live track). Tracks grow with T x M. `open_video(max_pixels=2**29)`
+downscales (with a warning) a video whose frames hold more pixels in all, so
+that these stay bounded.
+""".splitlines()
+
+
+def make_clip(cache: Path, frames: int, size: tuple[int, int]) -> tuple[Path, Path]:
+    """The cached clip ``cache/clip.mp4`` and its mask folder ``cache/masks``; rendered when missing."""
+    video, masks = cache / "clip.mp4", cache / "masks"
+    if video.is_file() and masks.is_dir() and len(list(masks.iterdir())) == frames:
+        return video, masks
+    cache.mkdir(parents=True, exist_ok=True)
+    scene = make_scene("oscillation", num_frames=frames, size=size, seed=0)
+    masks.mkdir(exist_ok=True)
+    for t, mask in enumerate(scene.masks):
+        write_image(masks / f"{t:05d}.png", mask)
+    write_video(video, scene.frames, scene.fps)
+    return video, masks
+
+
+def run_extract(video: Path, masks: Path | None, output: Path) -> tuple[float, float, float, dict[str, float]]:
+    """Run ``marionette extract`` in a child process → (peak RSS in MB, wall and CPU seconds, stage timings)."""
+    cmd = [sys.executable, "-m", "marionette", "extract", str(video), "-o", str(output), "--quiet"]
+    if masks is not None:
+        cmd += ["--masks", str(masks)]
+    start = time.perf_counter()
+    process = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True)
+    _, status, usage = os.wait4(process.pid, 0)
+    wall = time.perf_counter() - start
+    stderr = process.stderr.read()
+    process.stderr.close()
+    process.returncode = os.waitstatus_to_exitcode(status)
+    if process.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed ({process.returncode}):\n{stderr}")
+    if stderr.strip():
+        print(stderr.strip(), file=sys.stderr)
+    timings = dict(read_prior(output).metadata["timings"])
+    return usage.ru_maxrss / 1024.0, wall, usage.ru_utime + usage.ru_stime, timings  # ru_maxrss: KiB on Linux
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=1000)
+    parser.add_argument("--size", default="854x480")
+    parser.add_argument("--cases", default="masks,auto", help="masks (given masks), auto (found automatically)")
+    parser.add_argument("--cache", type=Path, default=Path("/tmp/marionette-bench-memory"))
+    parser.add_argument("--output", type=Path, default=OUT)
+    args = parser.parse_args()
+    size = tuple(int(x) for x in args.size.lower().split("x"))
+
+    start = time.perf_counter()
+    video, masks = make_clip(args.cache / f"{args.frames}x{size[0]}x{size[1]}", args.frames, size)
+    print(f"clip ready ({time.perf_counter() - start:.0f} s): {video}", flush=True)
+
+    stages = ("foreground", "tracking", "camera", "poses", "smoothing")
+    rows = []
+    for case in args.cases.split(","):
+        peak, wall, cpu, timings = run_extract(video, masks if case == "masks" else None, args.cache / f"{case}.npz")
+        reading = wall - timings["total"]
+        cells = [f"{timings[s]:.1f}" if s in timings else "-" for s in stages]
+        rows.append(f"| {case} | {peak:.0f} | {'yes' if peak <= BUDGET_MB else 'NO'} | {wall:.1f} | {cpu:.1f} | "
+                    f"{reading:.1f} | " + " | ".join(cells) + " |")
+        print(rows[-1], flush=True)
+
+    lines = [
+        "# Peak memory of `marionette extract` on a long video",
+        "",
+        f"`python benchmarks/bench_memory.py --frames {args.frames} --size {args.size} --cases {args.cases}` "
+        f"on {platform.machine()}, Python {platform.python_version()}, {os.cpu_count()} cores (shared).",
+        "",
+        f"Input: a synthetic {args.frames}-frame {size[0]}x{size[1]} H.264 clip (`make_scene('oscillation')`) "
+        "and its PNG masks. `masks`: `marionette extract clip.mp4 --masks masks/`; `auto`: without masks "
+        "(automatic foreground). Peak RSS: `ru_maxrss` of the `marionette` process (`os.wait4`). Times in "
+        "seconds: wall and CPU (user + system) time of the process; 'reading' is the wall time outside "
+        "`extract_prior` (start-up, decoding, masks); stages from the prior's `timings` (wall). "
+        f"Budget: {BUDGET_MB} MB.",
+        "",
+        "| case | peak RSS (MB) | within budget | wall (s) | CPU (s) | reading | " + " | ".join(stages) + " |",
+        "|---|---|---|---|---|---|" + "---|" * len(stages),
+        *rows,
+        "",
+        *NOTES,
+    ]
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    args.output.write_text("\n".join(lines))
+    print(f"wrote {args.output}")
+
+
+if __name__ == "__main__":
+    main()
