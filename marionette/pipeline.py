@@ -7,6 +7,7 @@ trajectory), ``render_video`` (trajectory → video file).
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Iterator, Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -82,8 +83,9 @@ def extract(source: str | Path, *, masks: str | Path | None = None, depth: str |
     depth_stack = None if depth is None else read_depths(depth, count=t, size=(w, h), indices=video.indices,
                                                          lazy=True)
     k = source_intrinsics(w, h, None if focal is None else focal * video.scale)
-    return extract_prior(video.frames, mask_stack, k, video.fps, depths=depth_stack, options=options,
-                         reporter=reporter)
+    with contextlib.closing(video.frames):  # stop the decoder however extraction ends
+        return extract_prior(video.frames, mask_stack, k, video.fps, depths=depth_stack, options=options,
+                             reporter=reporter)
 
 
 def _camera_for_splats(gaussians: Gaussians, width: int, height: int) -> Camera:

@@ -54,6 +54,7 @@ def test_max_pixels_downscales_with_a_warning(clip):
     assert t == 20 and t * h * w <= 100_000 and (w, h) == (81, 61)  # the largest long side that fits
     assert video.scale == 81 / 160
     assert video.frames[5].shape == (61, 81, 3)
+    video.frames.close()
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # within the limit: no warning, full size
         assert open_video(root / "clip.mp4", max_pixels=20 * 160 * 120).size == (160, 120)

@@ -272,8 +272,15 @@ def open_video(source: str | Path, *, max_side: int | None = None, max_pixels: i
         warnings.warn(f"{source}: {count} frames of {target[0]}x{target[1]} exceed the limit of {max_pixels} "
                       f"pixels in all; downscaled to {smaller[0]}x{smaller[1]}", stacklevel=2)
         target = smaller
-    frames = VideoFrames(lambda: (frame for _, _, frame in stream()), count, target)
+    frames = VideoFrames(lambda: _frames_of(stream()), count, target)
     return Video(frames=frames, fps=rate, scale=scale, names=names, indices=indices)
+
+
+def _frames_of(stream: Iterator[tuple[int, str, np.ndarray]]) -> Iterator[np.ndarray]:
+    """The frames of a pass, closing the pass when closed."""
+    with contextlib.closing(stream):
+        for _, _, frame in stream:
+            yield frame
 
 
 def _open_source(source: str | Path, max_side: int | None, fps: float | None, start: int, end: int | None,
@@ -308,8 +315,9 @@ def _open_source(source: str | Path, max_side: int | None, fps: float | None, st
         def stream() -> Iterator[tuple[int, str, np.ndarray]]:
             nonlocal first
             frames, first = first or frames_of(source)[0], None  # the reader opened to check the file comes first
-            picked = itertools.islice(frames, selection.start, selection.stop, selection.step)
-            return ((int(name), name, frame) for name, frame in picked)
+            with contextlib.closing(frames):  # a pass stopped early still stops its decoder
+                for name, frame in itertools.islice(frames, selection.start, selection.stop, selection.step):
+                    yield int(name), name, frame
     else:
         raise InputError(f"{source}: unsupported video format '{source.suffix}' "
                          f"(use {', '.join(VIDEO_SUFFIXES)} or a folder of frames)")

@@ -304,16 +304,17 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
                 progress(i * num_frames + round(done * num_frames / max(total, 1)), len(groups) * num_frames)
 
             failed: dict[int, str] = {}
+            points = None  # fitted 3D points whose depth the motion measured (they extend the carved volume)
             if g == STATIC or members.sum() < options.rigid.min_points:
                 poses = np.tile(np.eye(4), (num_frames, 1, 1))  # static, or too few tracks to tell
             elif depths is not None:
                 poses = poses_from_depth(_subset(tracks, members), depths, k)
             else:
                 fit = fit_rigid(_subset(tracks, members), shape, options=options.rigid, progress=step)
-                poses, failed = fit.poses, fit.failed_frames
+                poses, failed, points = fit.poses, fit.failed_frames, fit.points[fit.triangulated]
                 rms.append(fit.reprojection_rms)
             trusted = np.array([t for t in range(num_frames) if t not in failed])
-            centre = carved_centroid(shape, masks, poses, trusted)
+            centre = carved_centroid(shape, masks, poses, trusted, points=points)
             parts.append(_Part(g, pixels, poses, centre, shape.radius, failed))
 
     parts.sort(key=lambda p: -p.pixels.sum())

@@ -24,17 +24,21 @@ the rigidity itself, the classical structure-from-motion route:
 3. **Joint refinement.** A sparse bundle adjustment (Triggs et al., "Bundle
    adjustment — a modern synthesis", 1999) over all poses and a subset of the
    3D points, with a Huber loss and a weak prior keeping each point's depth
-   near its lifted value (this also fixes the scale gauge). Where the object
-   turns out of plane, parallax corrects the guessed shape and the poses with
-   it; where it does not (translation, in-plane rotation) the shape stays
-   the prior's and is irrelevant to the motion anyway. It runs every
-   ``refine_every`` frames on the frames so far (so that the next PnP uses
-   corrected points) and over the whole clip at the end, where tracks are
-   then cut where they start to disagree with the fit (drift) and it runs
-   once more.
-4. **Centre.** :func:`carved_centroid` carves the prior volume with the
-   silhouettes of all frames under the fitted poses; its centroid is the
-   body's centre (what the SpaT prior rotates parts about).
+   near its starting value. The scale is a gauge freedom that reprojections
+   cannot see: at the end it is reset so that the tracks lifted at frame 0
+   keep their median depth, the shape prior's scale (left to the depth
+   prior, it drifts with the shape guessed for surface that turns into view
+   later). Where the object turns out of plane, parallax corrects the
+   guessed shape and the poses with it; where it does not (translation,
+   in-plane rotation) the shape stays the prior's and is irrelevant to the
+   motion anyway. It runs every ``refine_every`` frames on the frames so far
+   (so that the next PnP uses corrected points) and over the whole clip at
+   the end, where tracks are then cut where they start to disagree with the
+   fit (drift) and it runs once more.
+4. **Centre.** :func:`carved_centroid` carves the prior volume, widened to
+   the depth range of the points the fit triangulated, with the silhouettes
+   of all frames under the fitted poses; its centroid is the body's centre
+   (what the SpaT prior rotates parts about).
 
 Frames where the pose cannot be estimated (fewer than ``min_points`` tracks
 or inliers) are expected outcomes, not errors: they are interpolated between
@@ -68,6 +72,10 @@ __all__ = ["ShapePrior", "RigidOptions", "RigidFit", "fit_rigid", "carved_centro
 # bisection steps on the first entry (each halves a step of ~3 % of the radius).
 _RAY_SAMPLES = 64
 _RAY_BISECTIONS = 16
+#: A point's depth counts as measured when its viewing direction turned by at
+#: least this much between its first and last inlier observation (the usual
+#: structure-from-motion triangulation-angle test; COLMAP's default is 1.5°).
+_MIN_TRIANGULATION_DEG = 2.0
 
 
 def _bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -217,18 +225,26 @@ class ShapePrior:
 
 
 def carved_centroid(shape: ShapePrior, masks: np.ndarray, poses: np.ndarray, frames: np.ndarray, *,
-                    tolerance: int = 2, agreement: float = 0.95, depth_samples: int = 24,
-                    max_rays: int = 8000) -> np.ndarray:
+                    points: np.ndarray | None = None, tolerance: int = 2, agreement: float = 0.95,
+                    depth_samples: int = 32, max_rays: int = 8000) -> np.ndarray:
     """Centroid of the prior volume carved by the silhouettes of the other frames (visual hull).
 
     The inflated prior guesses the hidden back of the body. Once the body has
     turned, the masks of later frames say where it is not (Laurentini, "The
-    visual hull concept", PAMI 1994): samples of the prior volume (up to
+    visual hull concept", PAMI 1994): samples of the volume (up to
     ``max_rays`` frame-0 pixel rays, ``depth_samples`` per ray) are kept when
     they project inside the mask (dilated by ``tolerance`` pixels) at no
     fewer than ``agreement`` of ``frames``, and their volume-weighted mean
     (``z² dz`` per sample, the frustum element) is the centroid. Without
     out-of-plane motion nothing is carved and this is the prior's centroid.
+
+    The guess can also be too shallow (a car seen from the front is longer
+    than it is wide) or start behind the true front (a box's corner pointing
+    at the camera). Triangulated body points (``points``, e.g. the
+    :attr:`RigidFit.triangulated` ones of :attr:`RigidFit.points`) show how
+    far the body really reaches: every ray is then sampled over at least
+    their depth range (2nd to 98th percentile), and the silhouettes carve
+    that too.
 
     Parameters
     ----------
@@ -237,6 +253,8 @@ def carved_centroid(shape: ShapePrior, masks: np.ndarray, poses: np.ndarray, fra
     poses : (T, 4, 4) body poses, frame 0 → t
     frames : (F,) int
         Frames whose pose is trusted.
+    points : (N, 3) float, optional
+        Body points whose depth was measured, camera-frame-0 coordinates.
 
     Returns
     -------
@@ -247,16 +265,19 @@ def carved_centroid(shape: ShapePrior, masks: np.ndarray, poses: np.ndarray, fra
     keep = (v % stride == 0) & (u % stride == 0)
     v, u = v[keep], u[keep]
     front, back = shape.front[v, u], shape.back[v, u]
+    if points is not None and len(points):
+        near, far = np.percentile(points[:, 2], [2, 98])
+        front, back = np.minimum(front, near), np.maximum(back, far)
     frac = (np.arange(depth_samples) + 0.5) / depth_samples
     z = front[:, None] + (back - front)[:, None] * frac[None]  # (R, L)
-    points = (_rays(shape.K, np.column_stack([u, v]).astype(np.float64))[:, None] * z[..., None]).reshape(-1, 3)
+    samples = (_rays(shape.K, np.column_stack([u, v]).astype(np.float64))[:, None] * z[..., None]).reshape(-1, 3)
     weight = (z**2 * (back - front)[:, None]).ravel()
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * tolerance + 1,) * 2)
     h, w = masks.shape[1:]
-    votes = np.zeros(len(points))
+    votes = np.zeros(len(samples))
     for t in frames:
         wide = cv2.dilate(masks[t].astype(np.uint8), kernel).astype(bool)
-        cam = transform_points(poses[t], points)
+        cam = transform_points(poses[t], samples)
         pix = np.rint(_project(shape.K, cam)).astype(np.int64)
         inside = (cam[:, 2] > 0) & (pix[:, 0] >= 0) & (pix[:, 0] < w) & (pix[:, 1] >= 0) & (pix[:, 1] < h)
         inside[inside] = wide[pix[inside, 1], pix[inside, 0]]
@@ -264,7 +285,7 @@ def carved_centroid(shape: ShapePrior, masks: np.ndarray, poses: np.ndarray, fra
     kept = votes >= agreement * len(frames)
     if not kept.any():
         return shape.centroid.copy()
-    return (weight[kept] @ points[kept]) / weight[kept].sum()
+    return (weight[kept] @ samples[kept]) / weight[kept].sum()
 
 
 @dataclass(frozen=True)
@@ -300,10 +321,10 @@ class RigidOptions:
         residuals if that is larger (LK tracks drift rather than jump, so what
         follows is suspect too), and the refinement runs again. 0 disables it.
     depth_prior_weight : float
-        A point whose depth moves by one radius away from its lifted value
-        costs as much as this many pixels of reprojection error in one frame.
-        Weak on purpose: it only decides what the tracks cannot (and fixes
-        the scale); at 1 it already biases in-plane rotations by ~0.2°.
+        A point whose depth moves by one radius away from its value before the
+        refinement costs as much as this many pixels of reprojection error in
+        one frame. Weak on purpose: it only decides what the tracks cannot;
+        at 1 it already biases in-plane rotations by ~0.2°.
     seed : int
         Seed of the refinement's track sample.
     """
@@ -332,6 +353,10 @@ class RigidFit:
         Each track's point on the body at frame 0; NaN for tracks never lifted.
     inliers : (T, M) bool
         Observations within ``ransac_threshold`` pixels of their reprojection.
+    triangulated : (M,) bool
+        Points whose depth the tracks measure: their viewing direction turned
+        by at least 2° over their inlier observations. The others keep about
+        the depth they were lifted at.
     failed_frames : dict[int, str]
         Frames whose pose was interpolated, with the reason.
     reprojection_rms : float
@@ -343,6 +368,7 @@ class RigidFit:
     poses: np.ndarray
     points: np.ndarray
     inliers: np.ndarray
+    triangulated: np.ndarray
     failed_frames: dict[int, str] = field(default_factory=dict)
     reprojection_rms: float = float("nan")
     timings: dict[str, float] = field(default_factory=dict)
@@ -571,6 +597,37 @@ def _refine_points(observed: np.ndarray, uv: np.ndarray, k: np.ndarray, poses: n
     return pts
 
 
+def _rescale(poses: np.ndarray, points: np.ndarray, anchors: np.ndarray, depths: np.ndarray) -> None:
+    """Fix the scale gauge in place: the median depth of the anchor points (A,) returns to ``depths`` (A,).
+
+    Scaling all points (N, 3) and the translations of all poses (T, 4, 4) by
+    one factor leaves every reprojection as it is: within the bundle
+    adjustment only the weak depth prior holds the scale, and tracks lifted
+    after frame 0 onto a wrong guess of the hidden shape pull it as much as
+    the frame-0 ones (on a car turning from a front to a side view, by 20 %).
+    The prior's scale is defined at frame 0, so it is restored from the
+    frame-0 tracks, by the median ratio (robust to the odd track that
+    another part or a reflection carries to any depth).
+    """
+    scale = float(np.median(depths / points[anchors, 2])) if len(anchors) else np.nan
+    if np.isfinite(scale) and scale > 0:
+        points *= scale
+        poses[:, :3, 3] *= scale
+
+
+def _triangulated(poses: np.ndarray, points: np.ndarray, inliers: np.ndarray) -> np.ndarray:
+    """Points (N, 3) whose viewing directions at their first and last inlier frame (inliers (T, N)) differ enough."""
+    seen = inliers.any(axis=0)
+    first = inliers.argmax(axis=0)
+    last = len(inliers) - 1 - inliers[::-1].argmax(axis=0)
+    # Camera centres in body coordinates: -Rᵀ t.
+    centres = -np.einsum("tji,tj->ti", poses[:, :3, :3], poses[:, :3, 3])
+    a, b = points - centres[first], points - centres[last]
+    with np.errstate(invalid="ignore"):
+        cos = np.einsum("ni,ni->n", a, b) / (np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1))
+    return seen & (cos < np.cos(np.radians(_MIN_TRIANGULATION_DEG)))
+
+
 def _reprojection_errors(k: np.ndarray, poses: np.ndarray, points: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """Pixel distances (T, N) between points (N, 3) moved by poses (T, 4, 4) and observations uv (T, N, 2).
 
@@ -653,6 +710,8 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
 
     lift(0, poses[0])
     inliers[0] = tracks.visible[0] & np.isfinite(points[:, 0])
+    anchors = np.nonzero(inliers[0])[0]  # tracks lifted on the shape prior's frame-0 surface
+    anchor_depths = points[anchors, 2].copy()
     good = [0]
     t_refine = 0.0
     for t in range(1, num_frames):
@@ -681,6 +740,7 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
     t_pose = time.perf_counter()
     if options.refine:
         refine(num_frames - 1, final=True)
+    _rescale(poses, points, anchors, anchor_depths)  # a no-op without refinement: PnP keeps the lifted scale
     if failed:
         poses = _fill_failed(poses, failed)
     poses[0] = np.eye(4)
@@ -692,5 +752,6 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
     inliers = tracks.visible & (err <= options.ransac_threshold)
     rms = float(np.sqrt(np.mean(err[inliers] ** 2))) if inliers.any() else float("nan")
     timings = {"pose": t_pose - t_start - t_refine, "refine": time.perf_counter() - t_pose + t_refine}
-    return RigidFit(poses=poses, points=points, inliers=inliers, failed_frames=dict(sorted(failed.items())),
+    return RigidFit(poses=poses, points=points, inliers=inliers, triangulated=_triangulated(poses, points, inliers),
+                    failed_frames=dict(sorted(failed.items())),
                     reprojection_rms=rms, timings=timings)
