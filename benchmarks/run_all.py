@@ -56,6 +56,7 @@ BENCHES = (
     Bench("bench_foreground.py", "foreground.md", needs_data=True),
     Bench("bench_rasterizer.py", "rasterizer.md", quick=("--runs", "3", "--no-reference")),
     Bench("bench_transfer.py", "transfer.md", quick=("--runs", "1", "--gaussians", "50000")),
+    Bench("bench_ablation.py", "ablation.md", needs_data=True),
     Bench("paper_setting.py", "paper_setting.md", quick=("--runs", "1")),
     Bench("bench_memory.py", "memory.md", quick=("--frames", "100", "--cache", "/tmp/marionette-bench-memory-quick")),
     Bench("bench_scaling.py", "scaling.md", quick=("--quick",)),
@@ -76,6 +77,8 @@ SECTIONS = (
      "Frames per second of the CPU rasterizer against the Gaussian count (scaling section: against the"
      " resolution too).", ("rasterizer.md",)),
     ("Scaling", "Time against source frames and target Gaussians, with the measured growth.", ("scaling.md",)),
+    ("Refinement ablation", "Each refinement step added in turn on a synthetic hinge and a real multi-part clip:"
+     " rigidity, torn seams, jerk.", ("ablation.md",)),
     ("More measurements", "Extraction on the real clips, automatic foreground, transfer speed.",
      ("extract_real.md", "foreground.md", "transfer.md")),
 )

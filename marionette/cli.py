@@ -507,8 +507,8 @@ def eval_self_cmd(source: Annotated[Path, typer.Argument(help="Video file or fol
 @app.command("eval")
 def eval_cmd(source: Annotated[Path, typer.Argument(help="Source video file or folder of frames.")],
              result: Annotated[Path, typer.Argument(help="Transferred video, e.g. from `marionette run`.")],
-             masks: Masks = None, max_side: MaxSide = pipeline.DEFAULT_MAX_SIDE, json_summary: Json = False,
-             config: Config = None) -> None:
+             masks: Masks = None, max_side: MaxSide = pipeline.DEFAULT_MAX_SIDE, quiet: Quiet = False,
+             json_summary: Json = False, config: Config = None) -> None:
     """Motion fidelity of RESULT to SOURCE: 1 the same motion, 0 unrelated, -1 opposite (frame by frame)."""
     from .eval import motion_fidelity
 
@@ -516,7 +516,9 @@ def eval_cmd(source: Annotated[Path, typer.Argument(help="Source video file or f
     src, res = read_video(source, max_side=max_side), read_video(result, max_side=max_side)
     t, h, w = src.frames.shape[:3]
     src_masks = None if masks is None else read_masks(masks, count=t, size=(w, h), indices=src.indices)
-    fidelity = motion_fidelity(src.frames, src_masks, res.frames, None)
+    with Reporter(quiet=quiet or json_summary).stage("motion fidelity", 1) as progress:
+        fidelity = motion_fidelity(src.frames, src_masks, res.frames, None)
+        progress(1, 1)
     print(json.dumps({"motion_fidelity": fidelity}) if json_summary else f"motion fidelity {fidelity:.4f}")
 
 

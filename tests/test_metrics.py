@@ -61,3 +61,14 @@ def test_a_hinge_opening_keeps_contact_but_a_lid_flying_off_tears():
     assert q.boundary_separation == 0.0  # most seam edges stretch, but the hinge line holds
     flown = [np.concatenate([body, lid + [0, 0, 0.1 * t]]) for t in range(8)]
     assert trajectory_quality(make_trajectory(flown, labels)).boundary_separation > 0.9
+
+
+def test_stretched_seam_counts_every_seam_edge_that_gapes():
+    xs = np.arange(0, 1.0, 0.1)
+    body = np.stack(np.meshgrid(xs, xs, [0.0], indexing="ij"), axis=-1).reshape(-1, 3)
+    lid = body + [0, 0, 0.1]  # touching layers: every body point has its lid neighbour
+    labels = np.repeat([0, 1], len(body))
+    opened = [np.concatenate([body, (lid - [0, 0, 0.05]) @ axis_angle_to_matrix([0, -a, 0]).T + [0, 0, 0.05]])
+              for a in np.linspace(0, np.pi / 2, 6)]
+    q = trajectory_quality(make_trajectory(opened, labels))
+    assert q.stretched_seam > 0.5 and q.boundary_separation == 0.0  # gaping, yet attached along the hinge line

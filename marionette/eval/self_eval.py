@@ -112,7 +112,9 @@ def eval_self(source: str | Path, masks: str | Path | None = None, output_dir: s
                           reporter=reporter)
     rendered = read_video(out / "video.mp4").frames[:, :h, :w]  # as written: codec loss included
     reference = on_white(frames, mask_stack)
-    psnr, ssim = frame_metrics(reference, rendered)
+    with reporter.stage("PSNR and SSIM", 1) as progress:
+        psnr, ssim = frame_metrics(reference, rendered)
+        progress(1, 1)
     metrics = {
         "psnr": float(psnr.mean()), "ssim": float(ssim.mean()),
         "lpips": None, "lpips_skipped": LPIPS_SKIPPED,

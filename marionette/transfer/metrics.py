@@ -15,6 +15,9 @@ ground truth:
   line, while a lid that flies off stretches all of them. A pair that keeps a
   line of contact is attached; one that keeps none is torn, and then all its
   stretched edges count, so a tear still scores near 1;
+- stretched seam: the first definition, kept as a figure of its own: share
+  of edges across a part boundary stretched by more than ``stretch`` at some
+  frame (an opening hinge scores high: the seam's open side gapes);
 - jerk: RMS third time difference of the means, in object radii per frame³.
 """
 
@@ -37,6 +40,7 @@ class TrajectoryQuality:
     rigidity_error: float
     boundary_separation: float
     jerk: float
+    stretched_seam: float
     edges_within: int
     edges_across: int
 
@@ -89,7 +93,8 @@ def trajectory_quality(trajectory: Trajectory, *, k: int = 8, stretch: float = 0
     within = labels[edges[:, 0]] == labels[edges[:, 1]]
     rigidity = float(np.abs(change[:, within]).mean()) if within.any() else 0.0
     separation = _separation(change[:, ~within], labels[edges[~within]], stretch, contact)
+    seam = float((change[:, ~within].max(axis=0) > stretch).mean()) if (~within).any() else 0.0
     radius = float(np.sqrt(((means[0] - means[0].mean(axis=0)) ** 2).sum(axis=1).mean())) or 1.0
     third = np.diff(means, n=3, axis=0)
     jerk = float(np.sqrt((third ** 2).sum(axis=2).mean()) / radius) if len(third) else 0.0
-    return TrajectoryQuality(rigidity, separation, jerk, int(within.sum()), int((~within).sum()))
+    return TrajectoryQuality(rigidity, separation, jerk, seam, int(within.sum()), int((~within).sum()))
