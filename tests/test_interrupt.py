@@ -22,8 +22,11 @@ def test_ctrl_c_while_rendering_leaves_nothing_partial(tmp_path, prior_file, tar
     cmd = [sys.executable, "-m", "marionette.cli", "transfer", str(prior_file), str(target_png), "-o", str(out),
            "--frames", "400", "--size", "256x256", "--ply-dir", str(tmp_path / "plys"),
            "--preview", str(tmp_path / "p.gif")]
-    # a session of its own, so the signal reaches the whole group (ffmpeg too), as Ctrl-C in a terminal does
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    # A session of its own, so the signal reaches the whole group (ffmpeg too), as Ctrl-C in a terminal does.
+    # SIGINT restored to its default: a shell running the tests in the background ignores it, which children
+    # inherit (and Python then installs no KeyboardInterrupt handler).
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 120
     while not any(p.name.startswith(".out.") for p in tmp_path.iterdir()):  # the video is being written
         assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read() if proc.poll() else "slow"
