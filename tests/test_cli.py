@@ -157,16 +157,23 @@ def test_installed_entry_point_prints_no_traceback(tmp_path):
     assert proc.stderr.startswith("error: ") and "Traceback" not in proc.stderr
 
 
-def test_extract_and_run_on_a_synthetic_video(tmp_path, target_png):
+def write_clip(root, scene):
+    """A scene as ``root/frames`` (PNG frames) and ``root/masks`` (PNG masks); the two folders."""
     from marionette.io import write_video
-    from marionette.synthetic import make_scene
 
-    scene = make_scene("inplane", num_frames=10, size=(160, 120), seed=1)
-    frames, masks = tmp_path / "frames", tmp_path / "masks"
+    frames, masks = root / "frames", root / "masks"
     write_video(frames, scene.frames, scene.fps)
     masks.mkdir()
     for i, m in enumerate(scene.masks):
         cv2.imwrite(str(masks / f"{i:05d}.png"), m.astype(np.uint8) * 255)
+    return frames, masks
+
+
+def test_extract_and_run_on_a_synthetic_video(tmp_path, target_png):
+    from marionette.synthetic import make_scene
+
+    scene = make_scene("inplane", num_frames=10, size=(160, 120), seed=1)
+    frames, masks = write_clip(tmp_path, scene)
     assert main(["extract", str(frames), "--masks", str(masks), "-o", str(tmp_path / "p.npz"), "-q",
                  "--parts", "1", "--plot", str(tmp_path / "p.png")]) == 0
     prior = read_prior(tmp_path / "p.npz")

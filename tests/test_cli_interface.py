@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from marionette.cli import main
-from marionette.io import read_video, write_video
+from marionette.io import read_video
 from marionette.synthetic import make_scene
 
-from test_cli import one_error_line, prior_file, target_png  # noqa: F401  (fixtures)
+from test_cli import one_error_line, prior_file, target_png, write_clip  # noqa: F401  (fixtures)
 
 
 def test_json_summary_lists_outputs_timings_and_figures(tmp_path, prior_file, target_png, capsys):
@@ -78,11 +78,7 @@ def test_missing_config_is_one_error_line(tmp_path, prior_file, target_png, caps
 
 def test_run_writes_a_frame_aligned_side_by_side(tmp_path, target_png, capsys):
     scene = make_scene("inplane", num_frames=8, size=(96, 72), seed=2)
-    frames, masks = tmp_path / "frames", tmp_path / "masks"
-    write_video(frames, scene.frames, scene.fps)
-    masks.mkdir()
-    for i, m in enumerate(scene.masks):
-        cv2.imwrite(str(masks / f"{i:05d}.png"), m.astype(np.uint8) * 255)
+    frames, masks = write_clip(tmp_path, scene)
     out, sbs = tmp_path / "r.mp4", tmp_path / "sbs.mp4"
     assert main(["run", str(frames), str(target_png), "--masks", str(masks), "-o", str(out), "-q", "--json",
                  "--frames", "12", "--loop", "pingpong", "--side-by-side", str(sbs)]) == 0
@@ -117,11 +113,7 @@ def test_splats_export_holds_every_frame_for_the_viewer(tmp_path, prior_file, ta
 def clip(tmp_path_factory):
     """A small synthetic clip: frame folder and mask folder."""
     root = tmp_path_factory.mktemp("clip")
-    scene = make_scene("translation", num_frames=12, size=(128, 96), seed=3, background="plain")
-    write_video(root / "frames", scene.frames, scene.fps)
-    (root / "masks").mkdir()
-    for i, m in enumerate(scene.masks):
-        cv2.imwrite(str(root / "masks" / f"{i:05d}.png"), m.astype(np.uint8) * 255)
+    write_clip(root, make_scene("translation", num_frames=12, size=(128, 96), seed=3, background="plain"))
     return root
 
 

@@ -158,6 +158,19 @@ class VideoFrames:
         self._stream, self._next, self._last = None, 0, (-1, None)
 
 
+def check_frames(frames: np.ndarray | VideoFrames, *, min_frames: int = 1, min_side: int = 8) -> None:
+    """Raise InputError unless ``frames`` is (T, H, W, 3) uint8 (an array or VideoFrames) with
+    T >= ``min_frames`` and H, W >= ``min_side``."""
+    if not isinstance(frames, (np.ndarray, VideoFrames)) or frames.ndim != 4 or frames.shape[3] != 3:
+        raise InputError(f"frames must be an array (T, H, W, 3), got shape {np.shape(frames)}")
+    if frames.dtype != np.uint8:
+        raise InputError(f"frames must be uint8, got {frames.dtype}")
+    if frames.shape[0] < min_frames or min(frames.shape[1:3]) < min_side:
+        count = "one frame" if min_frames == 1 else f"{min_frames} frames"
+        raise InputError(f"frames must hold at least {count} of at least {min_side}x{min_side} pixels, "
+                         f"got shape {frames.shape}")
+
+
 class PackedMasks:
     """(T, H, W) bool masks stored as packed bits, an eighth of a bool array; frames unpack on demand.
 

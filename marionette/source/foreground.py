@@ -62,7 +62,7 @@ import cv2
 import numpy as np
 
 from ..errors import InputError
-from ..io.video import PackedMasks, VideoFrames
+from ..io.video import PackedMasks, VideoFrames, check_frames
 from ..segment import SalientModel, refine_with_grabcut
 from ..segment._grabcut import keep_main_object
 from ..segment._u2net import default_model
@@ -136,16 +136,6 @@ class ForegroundOptions:
                 raise InputError(f"foreground: {name} must be a positive number, got {value!r}")
         if self.whole_fraction > 1:
             raise InputError(f"foreground: whole_fraction must lie in (0, 1], got {self.whole_fraction}")
-
-
-def _check_frames(frames: np.ndarray | VideoFrames) -> None:
-    """Raise InputError unless ``frames`` is (T, H, W, 3) uint8, T >= 2 and H, W >= 16 (an array or VideoFrames)."""
-    if not isinstance(frames, (np.ndarray, VideoFrames)) or frames.ndim != 4 or frames.shape[3] != 3:
-        raise InputError(f"frames must be an array (T, H, W, 3), got shape {np.shape(frames)}")
-    if frames.dtype != np.uint8:
-        raise InputError(f"frames must be uint8, got {frames.dtype}")
-    if frames.shape[0] < 2 or min(frames.shape[1:3]) < 16:
-        raise InputError(f"frames must hold at least 2 frames of at least 16x16 pixels, got shape {frames.shape}")
 
 
 class _Flows:
@@ -362,7 +352,7 @@ def auto_masks(frames: np.ndarray | VideoFrames, *, key_every: int = 8, options:
         On malformed frames or options, or when no frame shows a salient or
         moving object.
     """
-    _check_frames(frames)
+    check_frames(frames, min_frames=2, min_side=16)
     if isinstance(key_every, bool) or int(key_every) != key_every or key_every < 1:
         raise InputError(f"foreground: key_every must be an integer >= 1, got {key_every!r}")
     options = options or ForegroundOptions()

@@ -44,7 +44,7 @@ import numba
 import numpy as np
 
 from ..errors import InputError
-from ..io.video import PackedMasks, VideoFrames
+from ..io.video import PackedMasks, VideoFrames, check_frames
 
 __all__ = ["Tracks", "track"]
 
@@ -115,12 +115,7 @@ def _check_video(frames: np.ndarray | VideoFrames,
     Frames may be decoded on demand (:class:`~marionette.io.video.VideoFrames`)
     and masks packed (:class:`~marionette.io.video.PackedMasks`).
     """
-    if not isinstance(frames, (np.ndarray, VideoFrames)) or frames.ndim != 4 or frames.shape[3] != 3:
-        raise InputError(f"frames must be an array (T, H, W, 3), got shape {np.shape(frames)}")
-    if frames.dtype != np.uint8:
-        raise InputError(f"frames must be uint8, got {frames.dtype}")
-    if frames.shape[0] < 1 or min(frames.shape[1:3]) < 8:
-        raise InputError(f"frames must hold at least one frame of at least 8x8 pixels, got shape {frames.shape}")
+    check_frames(frames)
     if not isinstance(masks, (np.ndarray, PackedMasks)) or masks.shape != frames.shape[:3]:
         raise InputError(f"masks must be an array {frames.shape[:3]} matching frames, got shape {np.shape(masks)}")
     if masks.dtype != bool and not np.issubdtype(masks.dtype, np.integer):
