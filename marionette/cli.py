@@ -581,6 +581,17 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
     print(f"warning: {str(message).splitlines()[0]}", file=sys.stderr)
 
 
+def _interrupted(error: BaseException) -> bool:
+    """Whether a KeyboardInterrupt is among the causes of ``error``."""
+    seen = set()
+    while error is not None and id(error) not in seen:
+        if isinstance(error, KeyboardInterrupt):
+            return True
+        seen.add(id(error))
+        error = error.__cause__ or error.__context__
+    return False
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point: run the CLI, turning bad input into ``error: …`` and exit code 2."""
     warnings.showwarning = _show_warning
@@ -597,6 +608,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {str(e).splitlines()[0]}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
+        code = 130
+    except Exception as e:  # Ctrl-C inside a compiled library surfaces wrapped (numba: SystemError)
+        if not _interrupted(e):
+            raise
         code = 130
     if code == 130:  # typer turns Ctrl-C into exit code 130
         print("error: interrupted", file=sys.stderr)
