@@ -113,28 +113,20 @@ def lifted_target(count: int, seed: int = 0):
 
 def gaussians_scaling(counts: list[int], frames: int, runs: int) -> list[dict]:
     """Transfer and render seconds for ``frames`` frames at 512x512, per target size."""
-    from marionette import pipeline
     from marionette.source import extract_prior
     from marionette.synthetic import make_scene
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from bench_transfer import time_transfer_render
 
     scene = make_scene("outofplane", num_frames=frames, size=(320, 240), seed=0)
     prior = extract_prior(scene.frames, scene.masks, scene.camera.K, scene.fps)
     rows = []
     for count in counts:
         target = lifted_target(count)
-
-        def once() -> tuple[float, float]:
-            start = time.perf_counter()
-            trajectory = pipeline.transfer(prior, target)
-            camera = pipeline.fit_view(target.camera, trajectory)
-            middle = time.perf_counter()
-            for _ in pipeline.render_frames(target.gaussians, trajectory, camera):
-                pass
-            return middle - start, time.perf_counter() - middle
-
         if not rows:
-            once()  # warm-up: load the compiled kernels
-        samples = [once() for _ in range(runs_for(count, LARGE_GAUSSIANS, runs))]
+            time_transfer_render(prior, target)  # warm-up: load the compiled kernels
+        samples = [time_transfer_render(prior, target) for _ in range(runs_for(count, LARGE_GAUSSIANS, runs))]
         row = {"gaussians": count, "frames": frames, "runs": len(samples),
                "transfer": statistics.median(s[0] for s in samples),
                "render": statistics.median(s[1] for s in samples),

@@ -31,6 +31,17 @@ from marionette.transfer.metrics import trajectory_quality
 OUT = Path(__file__).resolve().parents[1] / "docs" / "benchmarks" / "transfer.md"
 
 
+def time_transfer_render(prior, target) -> tuple[float, float]:
+    """Seconds to transfer ``prior`` onto the lifted ``target`` and to render every frame (not written)."""
+    start = time.perf_counter()
+    trajectory = pipeline.transfer(prior, target)
+    camera = pipeline.fit_view(target.camera, trajectory)
+    middle = time.perf_counter()
+    for _ in pipeline.render_frames(target.gaussians, trajectory, camera):
+        pass
+    return middle - start, time.perf_counter() - middle
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=5)
@@ -44,17 +55,8 @@ def main() -> None:
     target = replace(target, gaussians=target.gaussians.subset(keep), pixel_of=target.pixel_of[keep])
     count = len(target.gaussians)
 
-    def once() -> tuple[float, float]:
-        start = time.perf_counter()
-        trajectory = pipeline.transfer(prior, target)
-        camera = pipeline.fit_view(target.camera, trajectory)
-        middle = time.perf_counter()
-        for _ in pipeline.render_frames(target.gaussians, trajectory, camera):
-            pass
-        return middle - start, time.perf_counter() - middle
-
-    once()  # warm-up: numba compilation
-    runs = [once() for _ in range(args.runs)]
+    time_transfer_render(prior, target)  # warm-up: numba compilation
+    runs = [time_transfer_render(prior, target) for _ in range(args.runs)]
     transfer_s = statistics.median(r[0] for r in runs)
     render_s = statistics.median(r[1] for r in runs)
     total = statistics.median(r[0] + r[1] for r in runs)
