@@ -10,7 +10,7 @@ from marionette.target.lift import LiftOptions, lift_image
 from marionette.transfer.metrics import trajectory_quality
 from marionette.transfer.parts import labels_from_seeds, seeds_from_layout
 from marionette.transfer.refine import RefineOptions, Refiner
-from marionette.transfer.velocity import integrate
+from marionette.transfer.velocity import integrate, joint_tree
 
 
 @pytest.fixture(scope="module")
@@ -92,3 +92,54 @@ def test_shape_matching_restores_a_noisy_deformed_patch():
     before = np.linalg.norm(noisy[act] - rigid[act], axis=1).mean()
     after = np.linalg.norm(projected[act] - rigid[act], axis=1).mean()
     assert after < 0.5 * before
+
+
+def chain_prior(bar: np.ndarray, labels: np.ndarray, frames: int = 12):
+    """A 3-part chain along x (parts 0 | 1 | 2): part 0 still, 1 turns about z at x = 1, 2 bends further at x = 2."""
+    def about(pivot, angle):
+        m = np.eye(4)
+        m[:3, :3] = axis_angle_to_matrix(np.array([0.0, 0.0, angle]))
+        m[:3, 3] = pivot - m[:3, :3] @ pivot
+        return m
+
+    angles = np.linspace(0, 0.6, frames)
+    poses = np.tile(np.eye(4), (3, frames, 1, 1))
+    for t, a in enumerate(angles):
+        poses[1, t] = about(np.array([1.0, 0.25, 0.0]), a)
+        poses[2, t] = poses[1, t] @ about(np.array([2.0, 0.25, 0.0]), a)
+    rest = np.stack([bar[labels == k].mean(axis=0) for k in range(3)])
+    cents = np.einsum("ktij,kj->kti", poses[..., :3, :3], rest) + poses[..., :3, 3]
+    radii = np.array([np.sqrt(((bar[labels == k] - rest[k]) ** 2).sum(axis=1).mean()) for k in range(3)])
+    from marionette.prior import SpatPrior
+    return SpatPrior.from_poses(poses, cents, radii, fps=10.0, image_size=(64, 64), intrinsics=np.eye(3))
+
+
+def test_joints_hold_a_chain_of_parts():
+    # A grandchild must turn about its joint with its parent too, not fly off about its own centre.
+    xs, ys = np.meshgrid(np.arange(0, 3, 0.05), np.arange(0, 0.5, 0.05), indexing="ij")
+    bar = np.column_stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)])
+    labels = np.minimum(bar[:, 0] // 1, 2).astype(int)
+    prior = chain_prior(bar, labels)
+    # The target's last part is twice as long as the source's: moving it by its own centre would tear it off.
+    target = bar.copy()
+    target[labels == 2, 0] = 2 + 2 * (bar[labels == 2, 0] - 2)
+    joints_only = RefineOptions(kinematic=False, topological=False, propagation=False, shape_matching=False)
+    order, parent, _ = joint_tree(target, labels, prior, Refiner(target, labels, joints_only).near)
+    assert order == [0, 1, 2] and parent.tolist() == [-1, 0, 1]
+    held = trajectory_quality(integrate(target, labels, prior, refine=joints_only))
+    free = trajectory_quality(integrate(target, labels, prior))
+    assert held.boundary_separation == 0.0 and held.rigidity_error < 1e-5  # float32 means
+    assert free.boundary_separation > 0.2
+
+
+def test_joint_tree_keeps_the_longest_seams_of_a_cycle():
+    # Three parts that all touch (a square cut into a long left half and two right quarters): rigid parts
+    # can hold only two seams, and the short one (between the two quarters) is the one to leave open.
+    xs, ys = np.meshgrid(np.arange(0, 2, 0.05), np.arange(0, 2, 0.05), indexing="ij")
+    square = np.column_stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)])
+    labels = np.where(square[:, 0] < 1.5, 0, np.where(square[:, 1] < 1, 1, 2))
+    prior = chain_prior(square, labels)
+    near = Refiner(square, labels, RefineOptions()).near
+    order, parent, _ = joint_tree(square, labels, prior, near)
+    # Seams: 0-1 and 0-2 are 1 long, 1-2 only 0.5: the tree is 1 - 0 - 2 from the steadiest part 0.
+    assert order[0] == 0 and parent.tolist() == [-1, 0, 0]

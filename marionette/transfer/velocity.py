@@ -22,7 +22,7 @@ drifts away from the part it is attached to (a lid turning about its middle
 leaves the box). With joints on, parts that touch (share k-nearest-neighbour
 edges) form a tree rooted at the steadiest part; the root moves as above and
 every other part turns about its joint with its parent, which moves with the
-parent::
+parent (the tree keeps the largest seams, see :func:`joint_tree`)::
 
     μ_{t+1} = R_t (μ_t − j_t) + j_{t+1},   j_{t+1} = parent's step applied to j_t
 
@@ -35,6 +35,7 @@ boundary band. The child's own translation is dropped: the joint fixes it.
 from __future__ import annotations
 
 import numpy as np
+from scipy.sparse.csgraph import minimum_spanning_tree
 
 from ..errors import InputError
 from ..geometry import rotation_angle_deg
@@ -96,14 +97,23 @@ def joint_tree(means: np.ndarray, labels: np.ndarray, prior: SpatPrior, near: np
 
     means : (N, 3) rest positions; labels : (N,) parts; near : (N, k) nearest
     neighbours of each Gaussian. Parts touch when at least ``min_edges``
-    neighbour pairs join them; roots are the parts that move least in the
-    prior (rotation in radians plus centre travel in radii).
+    neighbour pairs join them. Rigid parts that move differently can hold
+    only a tree of their seams, so the tree keeps the longest ones: the
+    maximum spanning tree of the contact graph weighted by seam size (a seam
+    left out, such as the short one closing a cycle of three parts, may
+    open). Each tree is rooted at its part that moves least in the prior
+    (rotation in radians plus centre travel in radii).
     """
     p = prior.num_parts
     a, b = np.repeat(labels, near.shape[1]), labels[near.ravel()]
-    touching = np.bincount(a * p + b, minlength=p * p).reshape(p, p) >= min_edges
-    np.fill_diagonal(touching, False)
-    touching &= touching.T
+    seam_size = np.bincount(a * p + b, minlength=p * p).reshape(p, p)
+    seam_size = np.minimum(seam_size, seam_size.T)
+    np.fill_diagonal(seam_size, 0)
+    seam_size[seam_size < min_edges] = 0
+    # Maximum spanning tree: a minimum one of weights that fall as seams grow (all positive, so none drops out).
+    weights = np.where(seam_size > 0, seam_size.max() + 1.0 - seam_size, 0.0)
+    tree = minimum_spanning_tree(weights).toarray() > 0
+    held = tree | tree.T
     angles = np.radians([[rotation_angle_deg(r) for r in part] for part in prior.rotations]).sum(axis=1)
     travel = np.linalg.norm(np.diff(prior.centroids, axis=1), axis=2).sum(axis=1) / prior.radii
     motion = angles + travel
@@ -113,8 +123,11 @@ def joint_tree(means: np.ndarray, labels: np.ndarray, prior: SpatPrior, near: np
         if root in order:
             continue
         order.append(int(root))
-        for k in order[order.index(root):]:  # breadth first; `order` grows while we walk it
-            for l in np.nonzero(touching[k])[0]:
+        walk = len(order) - 1
+        while walk < len(order):  # breadth first: `order` grows while we walk it
+            k = order[walk]
+            walk += 1
+            for l in np.nonzero(held[k])[0]:
                 if l in order:
                     continue
                 guess = cents[l] + (_source_joint(prior, k, l) - prior.centroids[l, 0]) * radii[l] / prior.radii[l]
