@@ -191,6 +191,15 @@ def _parse_part_seeds(items: list[str] | None) -> dict[int, tuple[float, float]]
     return seeds
 
 
+def _optional_output(path: Optional[Path], suffix: str, option: str) -> None:
+    """Check an optional output file: the right suffix and a writable place."""
+    if path is None:
+        return
+    if path.suffix.lower() != suffix:
+        raise InputError(f"{option} must name a {suffix} file, got {path.name!r}")
+    check_output_path(path)
+
+
 def _video_output(path: Path) -> Path:
     if path.suffix.lower() not in VIDEO_SUFFIXES:
         raise InputError(f"unsupported video output {path.name!r}: use .mp4, .gif or a folder name")
@@ -249,10 +258,7 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
         raise InputError(f"--max-pixels must be at least {16 * 16 * 2}, got {max_pixels}")
     if not (np.isfinite(smooth) and 0 <= smooth <= 100):
         raise InputError(f"--smooth must be within 0..100, got {smooth}")
-    if plot is not None:
-        if plot.suffix.lower() != ".png":
-            raise InputError(f"--plot must name a .png file, got {plot.name!r}")
-        check_output_path(plot)
+    _optional_output(plot, ".png", "--plot")
     options = ExtractOptions(parts=parts_value, smoothing=smooth)
     prior = pipeline.extract(source, masks=masks, depth=depth, focal=focal, max_side=max_side,
                              max_pixels=max_pixels, start=start,
@@ -359,14 +365,8 @@ def _playback(output: Path, target: Path, frames, speed, loop, reverse, rotation
     if camera_path is not None:
         load_camera_path(camera_path, None)  # the frame count is checked once it is known
     _video_output(output)
-    if preview is not None and preview.suffix.lower() != ".gif":
-        raise InputError(f"--preview must name a .gif file, got {preview.name!r}")
-    if preview is not None:
-        check_output_path(preview)
-    if splats is not None and splats.suffix.lower() != ".npz":
-        raise InputError(f"--splats must name a .npz file, got {splats.name!r}")
-    if splats is not None:
-        check_output_path(splats)
+    _optional_output(preview, ".gif", "--preview")
+    _optional_output(splats, ".npz", "--splats")
     if ply_dir is not None:
         check_output_folder(ply_dir, pipeline.PLY_FRAME_NAME)
     if anchor not in ("centroid", "world"):
@@ -454,10 +454,7 @@ def run(source: Annotated[Path, typer.Argument(help="Video file or folder of fra
                      preview, splats)
     if side_by_side is not None:
         _video_output(side_by_side)
-    if report is not None and report.suffix.lower() != ".json":
-        raise InputError(f"--report must name a .json file, got {report.name!r}")
-    if report is not None:
-        check_output_path(report)
+    _optional_output(report, ".json", "--report")
     with _session("run", quiet, verbose, json_summary) as session:
         prior = _extract(source, masks, depth, focal, parts, start, end, stride, max_side, max_pixels, smooth, plot,
                          session)
