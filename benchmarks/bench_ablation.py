@@ -85,7 +85,7 @@ def run_case(name, prior, target, seeds):
     labels = labels_from_seeds(target.gaussians.means, target.pixel_of, seeds)
     lines = [(f"### {name}: {len(labels):,} Gaussians, {np.bincount(labels).tolist()} per part, "
               f"{prior.num_frames} frames"), "",
-             "| refinement | rigidity error | boundary separation | stretched seam | jerk | time s |",
+             "| refinement | rigidity error | boundary separation | detached seam | jerk | time s |",
              "|---|---:|---:|---:|---:|---:|"]
     trajectories = []
     integrate(target.gaussians.means, labels, prior, refine=RefineOptions())  # warm-up: numba compilation
@@ -96,7 +96,7 @@ def run_case(name, prior, target, seeds):
         q = trajectory_quality(trajectory)
         trajectories.append(trajectory)
         lines.append(f"| {row} | {100 * q.rigidity_error:.3f} % | {100 * q.boundary_separation:.1f} % | "
-                     f"{100 * q.stretched_seam:.1f} % | {q.jerk:.2e} | {elapsed:.2f} |")
+                     f"{100 * q.detached_seam:.1f} % | {q.jerk:.2e} | {elapsed:.2f} |")
         print(lines[-1], flush=True)
     sheet = ROOT / "docs" / "images" / f"ablation_{name}.png"
     contact_sheet(target, trajectories, sheet)
@@ -110,19 +110,22 @@ def main() -> None:
                         help="davis_train prior with 4 parts (extracted once when missing)")
     args = parser.parse_args()
     intro = ("`python benchmarks/bench_ablation.py`. Metrics from `trajectory_quality`: rigidity error (mean "
-             "relative change of within-part kNN edge lengths), boundary separation (share of across-part edges "
-             "that tear: stretched > 50 % while their parts keep no contact), stretched seam (the first "
-             "definition of boundary separation: share of across-part edges stretched > 50 % at some frame; an "
-             "honest hinge opening scores high on it, since the open side of its seam gapes), jerk (object radii "
-             "per frame³). Each "
-             "row adds one step; joints (ours) are off until the row that adds them. Time is `integrate` alone "
-             "(2 shared cores, so +-30 %).")
+             "relative change of within-part kNN edge lengths), boundary separation (share of across-part kNN edges "
+             "stretched by more than 50 % at some frame, issue 4's definition), detached seam (ours: share of "
+             "across-part edges that tear while their two parts keep no contact at all), jerk (object radii per "
+             "frame³). Each row adds one step; joints (ours) are off until the row that adds them. Time is "
+             "`integrate` alone (2 shared cores, so +-30 %).")
     reading = ("Reading: the kinematic sweeps smooth the residual from each part's rigid motion, so alone they "
                "change nothing (rigid fields have none); the topological term bends the band (rigidity error up) "
                "without closing a seam whose parts turn about different centres; shape matching takes most of "
-               "that bend back out. What keeps a seam closed is turning each part about its joint: with joints "
-               "the hinge keeps its hinge line and no edge tears. Joints form a tree, so a seam between two "
-               "children of one parent (a cycle, as in the teapot's three parts) is not held.")
+               "that bend back out. What keeps parts attached is turning each part about its joint: with joints "
+               "the hinge keeps its hinge line and no seam detaches. Boundary separation stays high all the same, "
+               "and no rigid refinement can lower it: as the lid opens, every seam edge off the hinge line "
+               "stretches (the open side gapes, as a real box's does); only bending the band until both sides of "
+               "the seam move together would pass it, which moves the tear one row inwards instead of removing "
+               "it. Issue 4's target of <= 1 % is therefore missed on the hinge. Joints form a tree (the maximum "
+               "spanning tree of the seams): in a cycle of parts, as on the teapot, the shortest seam may "
+               "detach.")
     lines = ["# Refinement ablation", "", intro, "", reading, ""]
     lines += run_case("hinge", *hinge_case())
     if DATA.exists():

@@ -39,8 +39,8 @@ def test_hinge_stays_attached_and_rigid(hinge):
     prior, means, labels = hinge
     raw = trajectory_quality(integrate(means, labels, prior))
     refined = trajectory_quality(integrate(means, labels, prior, refine=RefineOptions()))
-    assert raw.boundary_separation > 0.5  # each part about its own centre: the lid flies off
-    assert refined.boundary_separation <= 0.01
+    assert raw.detached_seam > 0.5  # each part about its own centre: the lid flies off
+    assert refined.detached_seam <= 0.01
     assert refined.rigidity_error <= 0.01
 
 
@@ -128,8 +128,8 @@ def test_joints_hold_a_chain_of_parts():
     assert order == [0, 1, 2] and parent.tolist() == [-1, 0, 1]
     held = trajectory_quality(integrate(target, labels, prior, refine=joints_only))
     free = trajectory_quality(integrate(target, labels, prior))
-    assert held.boundary_separation == 0.0 and held.rigidity_error < 1e-5  # float32 means
-    assert free.boundary_separation > 0.2
+    assert held.detached_seam == 0.0 and held.rigidity_error < 1e-5  # float32 means
+    assert free.detached_seam > 0.2
 
 
 def test_joint_tree_keeps_the_longest_seams_of_a_cycle():

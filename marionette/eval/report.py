@@ -26,7 +26,7 @@ def run_report(source: str | Path, result: str | Path, trajectory: Trajectory, s
     motion it plays. ``masks`` is the source's mask folder (default:
     automatic masks). Returns ``motion_fidelity`` (in [-1, 1], or None with a
     reason when nothing trackable lasts long enough) and the trajectory's
-    ``rigidity_error``, ``boundary_separation`` and ``jerk``.
+    ``rigidity_error``, ``boundary_separation``, ``detached_seam`` and ``jerk``.
     """
     video = read_video(source, max_side=max_side, start=start, end=end, stride=stride)
     t, h, w = video.frames.shape[:3]
@@ -39,5 +39,5 @@ def run_report(source: str | Path, result: str | Path, trajectory: Trajectory, s
         report["motion_fidelity_skipped"] = str(e)
     quality = trajectory_quality(trajectory)
     report.update(rigidity_error=quality.rigidity_error, boundary_separation=quality.boundary_separation,
-                  jerk=quality.jerk)
+                  detached_seam=quality.detached_seam, jerk=quality.jerk)
     return report

@@ -1,23 +1,21 @@
 """Quality of a transferred trajectory: local rigidity, separation at part boundaries, jerk.
 
-All three compare a trajectory of Gaussian means (T, N, 3) with its own
+All of them compare a trajectory of Gaussian means (T, N, 3) with its own
 frame 0 on a k-nearest-neighbour graph of the frame-0 means, so they need no
 ground truth:
 
 - rigidity error: mean over frames and within-part edges of
   ``| |x_i(t) - x_j(t)| / |x_i(0) - x_j(0)| - 1 |`` (0 for a rigid motion);
-- boundary separation: share of edges across a part boundary that tear: they
-  grow by more than ``stretch`` (50 %) at a frame where their two parts have
-  lost contact, i.e. fewer than ``contact`` (0.5 %, and at least one) of the
-  pair's across edges stay within ``stretch``. Counting every stretched edge
-  (the first definition) called an honest hinge torn: a lid opening about its
-  edge stretches nearly every edge of the seam except those along the hinge
-  line, while a lid that flies off stretches all of them. A pair that keeps a
-  line of contact is attached; one that keeps none is torn, and then all its
-  stretched edges count, so a tear still scores near 1;
-- stretched seam: the first definition, kept as a figure of its own: share
-  of edges across a part boundary stretched by more than ``stretch`` at some
-  frame (an opening hinge scores high: the seam's open side gapes);
+- boundary separation: share of edges across a part
+  boundary stretched by more than ``stretch`` (50 %) at some frame. It
+  counts a seam that gapes: an honest hinge opening scores high on it, since
+  every seam edge off the hinge line stretches as the lid turns away;
+- detached seam (ours): share of edges across a part boundary that tear
+  while their two parts have lost contact: stretched by more than
+  ``stretch`` at a frame where fewer than ``contact`` (0.5 %, and at least
+  one) of the pair's across edges stay within ``stretch``. It tells a lid
+  that opens about its hinge line (attached: 0) from one that flies off (all
+  its stretched edges count, so near 1);
 - jerk: RMS third time difference of the means, in object radii per frame³.
 """
 
@@ -39,8 +37,8 @@ class TrajectoryQuality:
 
     rigidity_error: float
     boundary_separation: float
+    detached_seam: float
     jerk: float
-    stretched_seam: float
     edges_within: int
     edges_across: int
 
@@ -60,7 +58,7 @@ def knn_edges(points: np.ndarray, k: int = 8) -> np.ndarray:
     return np.unique(edges, axis=0)
 
 
-def _separation(change: np.ndarray, pairs: np.ndarray, stretch: float, contact: float) -> float:
+def _detached(change: np.ndarray, pairs: np.ndarray, stretch: float, contact: float) -> float:
     """Share of across edges (change (T, E), part pairs (E, 2)) stretched while their pair has lost contact."""
     if not change.size:
         return 0.0
@@ -75,7 +73,7 @@ def _separation(change: np.ndarray, pairs: np.ndarray, stretch: float, contact: 
 
 def trajectory_quality(trajectory: Trajectory, *, k: int = 8, stretch: float = 0.5, contact: float = 0.005,
                        max_points: int = 20000, seed: int = 0) -> TrajectoryQuality:
-    """Rigidity error, boundary separation and jerk of a trajectory (see the module notes).
+    """Rigidity error, boundary separation, detached seam and jerk of a trajectory (see the module notes).
 
     Up to ``max_points`` Gaussians (a random subset) enter the graph.
     """
@@ -92,9 +90,9 @@ def trajectory_quality(trajectory: Trajectory, *, k: int = 8, stretch: float = 0
     change = length / rest - 1.0
     within = labels[edges[:, 0]] == labels[edges[:, 1]]
     rigidity = float(np.abs(change[:, within]).mean()) if within.any() else 0.0
-    separation = _separation(change[:, ~within], labels[edges[~within]], stretch, contact)
-    seam = float((change[:, ~within].max(axis=0) > stretch).mean()) if (~within).any() else 0.0
+    separation = float((change[:, ~within].max(axis=0) > stretch).mean()) if (~within).any() else 0.0
+    detached = _detached(change[:, ~within], labels[edges[~within]], stretch, contact)
     radius = float(np.sqrt(((means[0] - means[0].mean(axis=0)) ** 2).sum(axis=1).mean())) or 1.0
     third = np.diff(means, n=3, axis=0)
     jerk = float(np.sqrt((third ** 2).sum(axis=2).mean()) / radius) if len(third) else 0.0
-    return TrajectoryQuality(rigidity, separation, jerk, seam, int(within.sum()), int((~within).sum()))
+    return TrajectoryQuality(rigidity, separation, detached, jerk, int(within.sum()), int((~within).sum()))
