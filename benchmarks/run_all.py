@@ -78,7 +78,7 @@ SECTIONS = (
      " resolution too).", ("rasterizer.md",)),
     ("Scaling", "Time against source frames and target Gaussians, with the measured growth.", ("scaling.md",)),
     ("Refinement ablation", "Each refinement step added in turn on a synthetic hinge and a real multi-part clip:"
-     " rigidity, torn seams, jerk.", ("ablation.md",)),
+     " rigidity, boundary separation, detached seams, jerk.", ("ablation.md",)),
     ("More measurements", "Extraction on the real clips, automatic foreground, transfer speed.",
      ("extract_real.md", "foreground.md", "transfer.md")),
 )
@@ -169,8 +169,9 @@ def plot_pose_accuracy(page: Path, path: Path) -> bool:
 
 
 def plot_table1(page: Path, path: Path) -> bool:
-    """Bars of PSNR and SSIM, the paper's and ours, per clip, from the table of ``table1.md``
-    (columns ``PSNR (dB)``, ``SSIM`` and ``paper SpaT PSNR / SSIM / LPIPS``); False when it has none."""
+    """Bars of PSNR, SSIM (and LPIPS where computed), the paper's and ours, per clip, from the table of
+    ``table1.md`` (columns ``PSNR (dB)``, ``SSIM``, ``LPIPS`` and ``paper SpaT PSNR / SSIM / LPIPS``); False
+    when it has none."""
     from matplotlib.figure import Figure
 
     paper_column = "paper SpaT PSNR / SSIM / LPIPS"
@@ -183,8 +184,11 @@ def plot_table1(page: Path, path: Path) -> bool:
     if not rows:
         return False
     names = [row[col["clip"]] if "clip" in col else row[0] for row in rows]
-    fig = Figure(figsize=(9, 3.6), dpi=100)
-    for ax, (metric, index) in zip(fig.subplots(1, 2), (("PSNR (dB)", 0), ("SSIM", 1))):
+    panels = [("PSNR (dB)", 0, "higher"), ("SSIM", 1, "higher")]
+    if "LPIPS" in col and all(re.fullmatch(r"[\d.]+", row[col["LPIPS"]]) for row in rows):
+        panels.append(("LPIPS", 2, "lower"))
+    fig = Figure(figsize=(4.5 * len(panels), 3.6), dpi=100)
+    for ax, (metric, index, better) in zip(fig.subplots(1, len(panels)), panels):
         paper = [float(row[col[paper_column]].split(" / ")[index]) for row in rows]
         ours = [float(row[col[metric]]) for row in rows]
         x = range(len(rows))
@@ -192,7 +196,7 @@ def plot_table1(page: Path, path: Path) -> bool:
         ax.bar([i + 0.2 for i in x], ours, 0.4, label="ours", color="#3b75af")
         ax.set_xticks(list(x), names, fontsize=8)
         ax.set_ylim(0, 1.3 * max(paper + ours))  # room for the legend
-        ax.set_ylabel(f"{metric}, higher is better")
+        ax.set_ylabel(f"{metric}, {better} is better")
         ax.grid(True, axis="y", alpha=0.3)
         ax.legend(fontsize=8)
     fig.suptitle("Table 1: self-transfer on the real clips, paper vs ours")

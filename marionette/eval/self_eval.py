@@ -31,6 +31,7 @@ from ..source import ExtractOptions, extract_prior
 from ..source.foreground import auto_masks
 from ..target.lift import LiftedTarget, LiftOptions, lift_image
 from .fidelity import motion_fidelity
+from .lpips import LPIPS, find_weights
 from .metrics import LPIPS_SKIPPED, frame_metrics, on_white
 
 __all__ = ["eval_self", "self_target", "EVAL_EXTRACT"]
@@ -88,7 +89,8 @@ def eval_self(source: str | Path, masks: str | Path | None = None, output_dir: s
     Returns
     -------
     dict, the content of ``metrics.json``: means ``psnr`` (dB), ``ssim``,
-    ``lpips`` (None, with ``lpips_skipped`` saying why), ``motion_fidelity``,
+    ``lpips`` (when weights are found, see :mod:`~marionette.eval.lpips`;
+    else None, with ``lpips_skipped`` saying why), ``motion_fidelity``,
     and the clip's size. The metrics are computed from ``video.mp4`` as
     written (decoded back), so they include the codec's loss and agree with
     any recomputation from the files.
@@ -115,9 +117,18 @@ def eval_self(source: str | Path, masks: str | Path | None = None, output_dir: s
     with reporter.stage("PSNR and SSIM", 1) as progress:
         psnr, ssim = frame_metrics(reference, rendered)
         progress(1, 1)
+    lpips = None
+    if find_weights() is not None:
+        model = LPIPS()
+        lpips = np.empty(t)
+        with reporter.stage("LPIPS", t) as progress:
+            for i, (a, b) in enumerate(zip(reference, rendered)):
+                lpips[i] = model(a, b)
+                progress(i + 1, t)
     metrics = {
         "psnr": float(psnr.mean()), "ssim": float(ssim.mean()),
-        "lpips": None, "lpips_skipped": LPIPS_SKIPPED,
+        "lpips": None if lpips is None else float(lpips.mean()),
+        **({"lpips_skipped": LPIPS_SKIPPED} if lpips is None else {"lpips_weights": str(model.path)}),
         "motion_fidelity": None,
         "psnr_min": float(psnr.min()), "ssim_min": float(ssim.min()),
         "frames": t, "width": w, "height": h, "fps": video.fps,
@@ -134,26 +145,30 @@ def eval_self(source: str | Path, masks: str | Path | None = None, output_dir: s
             except InputError as e:  # e.g. an object without texture to track: the image metrics still stand
                 metrics["motion_fidelity_skipped"] = str(e)
     write_video(out / "side_by_side.mp4", pipeline.side_by_side(reference, rendered), video.fps)
-    write_text(out / "frames.csv", _frames_csv(psnr, ssim))
-    _plot_metrics(out / "metrics.png", psnr, ssim, video.fps, metrics)
+    write_text(out / "frames.csv", _frames_csv(psnr, ssim, lpips))
+    _plot_metrics(out / "metrics.png", psnr, ssim, lpips, video.fps, metrics)
     write_text(out / "metrics.json", json.dumps(metrics, indent=2) + "\n")
     return metrics
 
 
-def _frames_csv(psnr: np.ndarray, ssim: np.ndarray) -> str:
+def _frames_csv(psnr: np.ndarray, ssim: np.ndarray, lpips: np.ndarray | None) -> str:
+    """One row per frame: PSNR, SSIM and, when computed, LPIPS."""
     buf = io.StringIO()
     writer = csv.writer(buf, lineterminator="\n")
-    writer.writerow(["frame", "psnr", "ssim"])
-    writer.writerows([t, f"{p:.4f}", f"{s:.6f}"] for t, (p, s) in enumerate(zip(psnr, ssim)))
+    writer.writerow(["frame", "psnr", "ssim"] + ([] if lpips is None else ["lpips"]))
+    for t, (p, s) in enumerate(zip(psnr, ssim)):
+        writer.writerow([t, f"{p:.4f}", f"{s:.6f}"] + ([] if lpips is None else [f"{lpips[t]:.6f}"]))
     return buf.getvalue()
 
 
-def _plot_metrics(path: Path, psnr: np.ndarray, ssim: np.ndarray, fps: float, metrics: dict) -> None:
-    """PSNR and SSIM over time, their means dashed (matplotlib object API, Agg)."""
-    fig = Figure(figsize=(8.0, 5.0), dpi=100)
+def _plot_metrics(path: Path, psnr: np.ndarray, ssim: np.ndarray, lpips: np.ndarray | None, fps: float,
+                  metrics: dict) -> None:
+    """PSNR, SSIM (and LPIPS when computed) over time, their means dashed (matplotlib object API, Agg)."""
+    series = [("PSNR", psnr, " (dB)"), ("SSIM", ssim, "")] + ([] if lpips is None else [("LPIPS", lpips, "")])
+    fig = Figure(figsize=(8.0, 2.5 * len(series)), dpi=100)
     seconds = np.arange(len(psnr)) / fps
-    for row, (name, values, unit) in enumerate((("PSNR", psnr, " (dB)"), ("SSIM", ssim, ""))):
-        ax = fig.add_subplot(2, 1, row + 1)
+    for row, (name, values, unit) in enumerate(series):
+        ax = fig.add_subplot(len(series), 1, row + 1)
         ax.plot(seconds, values, color="C0")
         ax.axhline(values.mean(), color="C1", linestyle="--", label=f"mean {values.mean():.3g}")
         ax.set_ylabel(name + unit)
