@@ -52,10 +52,11 @@ def knn_edges(points: np.ndarray, k: int = 8) -> np.ndarray:
     if k < 1:
         return np.zeros((0, 2), np.int64)
     _, idx = cKDTree(points).query(points, k=k + 1)
-    i = np.repeat(np.arange(len(points)), k)
-    j = idx[:, 1:].ravel()
-    edges = np.sort(np.column_stack([i, j]), axis=1)
-    return np.unique(edges, axis=0)
+    i = np.repeat(np.arange(len(points), dtype=np.int64), k)
+    j = idx[:, 1:].ravel().astype(np.int64)
+    # Unique pairs through one int64 key per pair (i < j): a 1-D unique, far faster than a row-wise one.
+    key = np.unique(np.minimum(i, j) * len(points) + np.maximum(i, j))
+    return np.column_stack([key // len(points), key % len(points)])
 
 
 def _detached(change: np.ndarray, pairs: np.ndarray, stretch: float, contact: float) -> float:

@@ -71,9 +71,9 @@ def velocity_step(means: np.ndarray, rotation: np.ndarray, translation: np.ndarr
     With anchors: ``v = R (μ − anchor_from) + anchor_to − μ``; without, the
     paper's ``v = R μ + δ − μ``.
     """
-    if anchor_from is None:
-        return means @ rotation.T + translation - means
-    return (means - anchor_from) @ rotation.T + anchor_to - means
+    # Both are (R − I) μ + c, one product and one sum over the points.
+    offset = translation if anchor_from is None else anchor_to - rotation @ anchor_from
+    return means @ (rotation - np.eye(3)).T + offset
 
 
 def _source_joint(prior: SpatPrior, k: int, l: int) -> np.ndarray:
@@ -173,23 +173,26 @@ def integrate(means: np.ndarray, labels: np.ndarray, prior: SpatPrior, *, anchor
         raise InputError(f"part labels must be ({len(means)},) integers in 0..{p - 1}")
     cents, radii = part_radii(means, labels, p)
     scale = radii / prior.radii if translation_scale is None else np.broadcast_to(translation_scale, (p,))
-    members = [np.nonzero(labels == k)[0] for k in range(p)]
-    refiner = Refiner(means, labels, refine) if refine is not None and p > 1 else None
+    # Work with the Gaussians sorted by part, so that each part is a slice (no gathers in the loop).
+    perm = np.argsort(labels, kind="stable")
+    rest, sorted_labels = means[perm], labels[perm]
+    bounds = np.searchsorted(sorted_labels, np.arange(p + 1))
+    refiner = Refiner(rest, sorted_labels, refine) if refine is not None and p > 1 else None
     order, parent = list(range(p)), np.full(p, -1)
     if refiner is not None and refine.joints and anchor == "centroid":
-        order, parent, joints = joint_tree(means, labels, prior, refiner.near)
+        order, parent, joints = joint_tree(rest, sorted_labels, prior, refiner.near)
 
     out = np.empty((t_count, len(means), 3), dtype=np.float32)
     rots = np.empty((t_count, p, 3, 3))
     out[0], rots[0] = means, np.eye(3)
-    mu = means.copy()
+    mu = rest.copy()
     pivot_from, pivot_to = np.zeros((p, 3)), np.zeros((p, 3))
     for t in range(t_count - 1):
-        v = np.zeros_like(mu)
+        v = np.empty_like(mu)  # every Gaussian is in one part's slice
         for k in order:
-            idx, r, d = members[k], prior.rotations[k, t], prior.translations[k, t]
+            part, r, d = slice(bounds[k], bounds[k + 1]), prior.rotations[k, t], prior.translations[k, t]
             if anchor == "world":
-                v[idx] = velocity_step(mu[idx], r, d)
+                v[part] = velocity_step(mu[part], r, d)
             else:
                 if parent[k] < 0:
                     g_next = cents[k] + scale[k] * (prior.centroids[k, t + 1] - prior.centroids[k, t])
@@ -198,11 +201,11 @@ def integrate(means: np.ndarray, labels: np.ndarray, prior: SpatPrior, *, anchor
                     q = parent[k]
                     pivot_from[k] = joints[k]
                     pivot_to[k] = joints[k] = prior.rotations[q, t] @ (joints[k] - pivot_from[q]) + pivot_to[q]
-                v[idx] = velocity_step(mu[idx], r, d, pivot_from[k], pivot_to[k])
+                v[part] = velocity_step(mu[part], r, d, pivot_from[k], pivot_to[k])
             rots[t + 1, k] = r @ rots[t, k]
         if refiner is not None:
             mu = refiner.project(mu + refiner.velocity(v))
         else:
             mu = mu + v  # Euler step, paper Eq. 6
-        out[t + 1] = mu
+        out[t + 1, perm] = mu
     return Trajectory(out, rots.astype(np.float32), labels.astype(np.int32))
