@@ -7,7 +7,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .errors import InputError
-from .geometry import matrix_to_quaternion, quaternion_to_matrix
+from .geometry import matrix_to_quaternion, quaternion_multiply
 
 __all__ = ["Gaussians", "SH_C0", "rgb_to_sh", "sh_to_rgb"]
 
@@ -110,8 +110,18 @@ class Gaussians:
         SH coefficients beyond degree 0 are not rotated (they are rare in
         single-image targets, and rotating them is a later refinement).
         """
-        r = np.asarray(rotations, dtype=np.float64)
-        new = matrix_to_quaternion(r @ quaternion_to_matrix(self.quats))
+        return self.turned(matrix_to_quaternion(np.asarray(rotations, dtype=np.float64)))
+
+    def turned(self, quats: np.ndarray) -> "Gaussians":
+        """Orientations pre-multiplied by the rotations of unit quaternions (N, 4) or (4,) ``w, x, y, z``.
+
+        Same as :meth:`rotated` with their matrices, without converting each
+        Gaussian's orientation to a matrix and back.
+        """
+        own = self.quats.astype(np.float64)
+        own /= np.maximum(np.linalg.norm(own, axis=1, keepdims=True), 1e-300)
+        new = quaternion_multiply(np.asarray(quats, dtype=np.float64), own)
+        new *= np.where(new[:, :1] < 0, -1.0, 1.0)  # w >= 0, as matrix_to_quaternion gives
         return replace(self, quats=new.astype(np.float32))
 
     @staticmethod

@@ -14,6 +14,7 @@ import numpy as np
 __all__ = [
     "quaternion_to_matrix",
     "matrix_to_quaternion",
+    "quaternion_multiply",
     "axis_angle_to_matrix",
     "matrix_to_axis_angle",
     "rotation_angle_deg",
@@ -42,6 +43,20 @@ def quaternion_to_matrix(q: np.ndarray) -> np.ndarray:
         axis=-1,
     )
     return m.reshape(q.shape[:-1] + (3, 3))
+
+
+def quaternion_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton products ``a ⊗ b`` of quaternions ``w, x, y, z`` (..., 4), broadcast.
+
+    For unit quaternions, ``a ⊗ b`` is the rotation ``R(a) R(b)``.
+    """
+    a, b = np.asarray(a), np.asarray(b)
+    aw, ax, ay, az = np.moveaxis(a, -1, 0)
+    bw, bx, by, bz = np.moveaxis(b, -1, 0)
+    return np.stack([aw * bw - ax * bx - ay * by - az * bz,
+                     aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw], axis=-1)
 
 
 def matrix_to_quaternion(m: np.ndarray) -> np.ndarray:

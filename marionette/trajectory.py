@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .gaussians import Gaussians
+from .geometry import matrix_to_quaternion
 
 __all__ = ["Trajectory"]
 
@@ -52,4 +53,5 @@ class Trajectory:
 
     def frame(self, gaussians: Gaussians, t: int) -> Gaussians:
         """The Gaussians as they are at frame ``t``: moved and turned."""
-        return gaussians.with_means(self.means[t]).rotated(self.part_rotations[t][self.labels])
+        turn = matrix_to_quaternion(self.part_rotations[t].astype(np.float64))  # (P, 4): one per part
+        return gaussians.with_means(self.means[t]).turned(turn[self.labels])

@@ -76,3 +76,22 @@ def test_invert_and_interpolate():
     # Halfway in angle: the rotation from a to mid equals that from mid to b.
     assert np.allclose(mid[:3, :3].T @ b[:3, :3], a[:3, :3].T @ mid[:3, :3])
     assert np.allclose(mid[:3, 3], [0, 1, 2.5])
+
+
+def test_quaternion_product_composes_rotations_and_turning_gaussians_matches_the_matrix_route():
+    from marionette.gaussians import Gaussians
+    from marionette.geometry import quaternion_multiply
+
+    rng = np.random.default_rng(7)
+    a, b = rng.normal(size=(50, 4)), rng.normal(size=(50, 4))
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    b /= np.linalg.norm(b, axis=1, keepdims=True)
+    np.testing.assert_allclose(quaternion_to_matrix(quaternion_multiply(a, b)),
+                               quaternion_to_matrix(a) @ quaternion_to_matrix(b), atol=1e-12)
+    # Slow route: each orientation to a matrix, turned, and back (w >= 0 either way).
+    g = Gaussians.from_rgb(rng.normal(size=(50, 3)), rng.uniform(size=(50, 3)), np.full(50, 0.1),
+                           quats=rng.normal(size=(50, 4)))
+    turns = quaternion_to_matrix(a)
+    expected = matrix_to_quaternion(turns @ quaternion_to_matrix(g.quats))
+    np.testing.assert_allclose(g.turned(a).quats, expected, atol=1e-6)
+    np.testing.assert_allclose(g.rotated(turns).quats, expected, atol=1e-6)

@@ -291,7 +291,8 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
         track_labels = _propagate_labels(tracks, seg.track_labels, OUTLIER, radius=3.0 * options.spacing)
         pixel_labels = seg.pixel_labels
         groups = list(range(seg.num_parts)) + ([STATIC] if (pixel_labels == STATIC).any() else [])
-        metadata["part_selection"] = {str(n): float(score) for n, score in seg.scores.items()}
+        # Rounded: the scores' last digits follow the BLAS thread count, and the metadata should not.
+        metadata["part_selection"] = {str(n): round(float(score), 3) for n, score in seg.scores.items()}
 
     parts, rms = [], []
     with stages("poses", "fitting poses", len(groups) * num_frames) as progress:

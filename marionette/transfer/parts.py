@@ -12,7 +12,7 @@ the same relative position in the target.
 from __future__ import annotations
 
 import numpy as np
-from scipy.sparse import coo_matrix
+from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
@@ -62,9 +62,12 @@ def labels_from_seeds(means: np.ndarray, pixel_of: np.ndarray, seeds: dict[int, 
         _, idx = by_pixel.query(np.asarray(seeds[part], dtype=np.float64), k=min(8, len(means)))
         idx = np.atleast_1d(idx)
         starts.append(int(idx[np.argmin(means[idx, 2])]))
-    edges = knn_edges(means, k)
-    length = np.linalg.norm(means[edges[:, 0]] - means[edges[:, 1]], axis=1) + 1e-12
-    graph = coo_matrix((length, (edges[:, 0], edges[:, 1])), shape=(len(means),) * 2).tocsr()
+    # Directed k-nearest-neighbour edges; dijkstra(directed=False) walks them both ways.
+    n, k = len(means), max(min(k, len(means) - 1), 1)
+    gap, near = cKDTree(means).query(means, k=k + 1, workers=-1)
+    gap, near = np.atleast_2d(gap)[:, 1:], np.atleast_2d(near)[:, 1:]
+    ok = near < n  # fewer points than k + 1: missing neighbours come back as index n
+    graph = csr_matrix((gap[ok] + 1e-12, (np.nonzero(ok)[0], near[ok])), shape=(n, n))
     # With min_only, the third output is the start each node is nearest to (-9999 when unreached).
     dist, _, source = dijkstra(graph, directed=False, indices=starts, min_only=True, return_predecessors=True)
     part_of_start = {s: p for s, p in zip(starts, parts)}

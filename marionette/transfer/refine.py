@@ -167,7 +167,7 @@ class Refiner:
         n, k = len(rest), min(options.neighbours, len(rest) - 1)
         self.radius = float(np.sqrt(((rest - rest.mean(axis=0)) ** 2).sum(axis=1).mean())) or 1.0
         # N'(i): nearest in any part; the band has a neighbour in another part.
-        _, near = cKDTree(rest).query(rest, k=k + 1)
+        _, near = cKDTree(rest).query(rest, k=k + 1, workers=-1)
         self.near = near[:, 1:]
         self.adjacency = csr_matrix((np.ones(n * k), (np.repeat(np.arange(n), k), self.near.ravel())), shape=(n, n))
         self.band = (labels[self.near] != labels[:, None]).any(axis=1)

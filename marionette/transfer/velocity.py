@@ -182,9 +182,9 @@ def integrate(means: np.ndarray, labels: np.ndarray, prior: SpatPrior, *, anchor
     if refiner is not None and refine.joints and anchor == "centroid":
         order, parent, joints = joint_tree(rest, sorted_labels, prior, refiner.near)
 
-    out = np.empty((t_count, len(means), 3), dtype=np.float32)
+    out = np.empty((t_count, len(means), 3), dtype=np.float32)  # in part order until the end
     rots = np.empty((t_count, p, 3, 3))
-    out[0], rots[0] = means, np.eye(3)
+    out[0], rots[0] = rest, np.eye(3)
     mu = rest.copy()
     pivot_from, pivot_to = np.zeros((p, 3)), np.zeros((p, 3))
     for t in range(t_count - 1):
@@ -207,5 +207,7 @@ def integrate(means: np.ndarray, labels: np.ndarray, prior: SpatPrior, *, anchor
             mu = refiner.project(mu + refiner.velocity(v))
         else:
             mu = mu + v  # Euler step, paper Eq. 6
-        out[t + 1, perm] = mu
-    return Trajectory(out, rots.astype(np.float32), labels.astype(np.int32))
+        out[t + 1] = mu
+    unsorted = np.empty_like(out)
+    unsorted[:, perm] = out
+    return Trajectory(unsorted, rots.astype(np.float32), labels.astype(np.int32))
