@@ -1,6 +1,7 @@
-"""LPIPS (Zhang et al., "The unreasonable effectiveness of deep features as a perceptual metric", CVPR 2018), AlexNet v0.1, in NumPy.
+"""LPIPS, AlexNet variant v0.1, in NumPy.
 
-The paper's Table 1 reports LPIPS. Its network weights (AlexNet's ImageNet
+Zhang et al., "The unreasonable effectiveness of deep features as a
+perceptual metric", CVPR 2018. Motion Marionette's Table 1 reports it. Its network weights (AlexNet's ImageNet
 features and LPIPS's learned linear layers) do not ship with this package;
 they are used when they are on the machine already:
 
