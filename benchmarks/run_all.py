@@ -137,6 +137,14 @@ def markdown_tables(text: str) -> list[list[list[str]]]:
     return tables
 
 
+def _save(fig, title: str, path: Path) -> None:
+    """Title a summary figure and write it to ``path`` as PNG."""
+    fig.suptitle(title)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+
+
 def plot_pose_accuracy(page: Path, path: Path) -> bool:
     """Bars of the median rotation and centroid errors per motion and noise level, from the summary
     table of ``extract.md``; False (nothing written) when the page has no such table."""
@@ -161,10 +169,7 @@ def plot_pose_accuracy(page: Path, path: Path) -> bool:
         ax.set_ylabel(label)
         ax.grid(True, axis="y", alpha=0.3)
         ax.legend(fontsize=8)
-    fig.suptitle("Pose accuracy on the synthetic suite (median over seeds)")
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
+    _save(fig, "Pose accuracy on the synthetic suite (median over seeds)", path)
     return True
 
 
@@ -199,10 +204,7 @@ def plot_table1(page: Path, path: Path) -> bool:
         ax.set_ylabel(f"{metric}, {better} is better")
         ax.grid(True, axis="y", alpha=0.3)
         ax.legend(fontsize=8)
-    fig.suptitle("Table 1: self-transfer on the real clips, paper vs ours")
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
+    _save(fig, "Table 1: self-transfer on the real clips, paper vs ours", path)
     return True
 
 

@@ -7,7 +7,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .errors import InputError
-from .geometry import matrix_to_quaternion, quaternion_multiply
+from .geometry import quaternion_multiply
 
 __all__ = ["Gaussians", "SH_C0", "rgb_to_sh", "sh_to_rgb"]
 
@@ -104,19 +104,11 @@ class Gaussians:
         """The same Gaussians moved to ``means`` (N, 3)."""
         return replace(self, means=means)
 
-    def rotated(self, rotations: np.ndarray) -> "Gaussians":
-        """Orientations pre-multiplied by rotations (N, 3, 3) or (3, 3); means unchanged.
+    def turned(self, quats: np.ndarray) -> "Gaussians":
+        """Orientations pre-multiplied by unit quaternions (N, 4) or (4,) ``w, x, y, z``; means unchanged.
 
         SH coefficients beyond degree 0 are not rotated (they are rare in
         single-image targets, and rotating them is a later refinement).
-        """
-        return self.turned(matrix_to_quaternion(np.asarray(rotations, dtype=np.float64)))
-
-    def turned(self, quats: np.ndarray) -> "Gaussians":
-        """Orientations pre-multiplied by the rotations of unit quaternions (N, 4) or (4,) ``w, x, y, z``.
-
-        Same as :meth:`rotated` with their matrices, without converting each
-        Gaussian's orientation to a matrix and back.
         """
         own = self.quats.astype(np.float64)
         own /= np.maximum(np.linalg.norm(own, axis=1, keepdims=True), 1e-300)

@@ -7,8 +7,6 @@ rendered synthetic scenes of ``marionette.synthetic``.
 
 from __future__ import annotations
 
-import json
-import warnings
 
 import numpy as np
 import pytest
@@ -16,7 +14,7 @@ import pytest
 from marionette.errors import InputError
 from marionette.geometry import axis_angle_to_matrix, make_transform, matrix_to_axis_angle, rotation_angle_deg
 from marionette.source import Tracks, track
-from marionette.source.rigid import RigidOptions, ShapePrior, carved_centroid, fit_rigid
+from marionette.source.rigid import ShapePrior, carved_centroid, fit_rigid
 from marionette.source.tracks import (_align_affine, _align_affine_numpy, _normalise, _refine_masked,
                                       _refine_masked_numpy)
 
