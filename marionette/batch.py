@@ -76,6 +76,7 @@ from .camera import MAX_IMAGE_SIDE
 from .errors import InputError
 from .io import read_prior, write_prior
 from .io.atomic import check_output_dir, leftover_temporaries, write_text
+from .options import parse_background, parse_part_seeds, parse_parts, parse_size
 from .prior import SpatPrior
 from .progress import Reporter
 from .render.camera_path import CAMERA_MOVES
@@ -134,49 +135,16 @@ def _existing(kind: str) -> Callable[[Any, Path], Path]:
     return check
 
 
-def _parts(value, base) -> int | str:
-    if value == "auto" or (not isinstance(value, bool) and isinstance(value, int) and 1 <= value <= 8):
-        return value
-    raise ValueError("must be \"auto\" or an integer in [1, 8]")
-
-
-def _numbers(value, count: int, separator: str) -> list[float]:
-    """A list of ``count`` numbers, or a string of them joined by ``separator``."""
-    if isinstance(value, str):
-        try:
-            value = [float(x) for x in value.lower().split(separator)]
-        except ValueError:
-            value = None
-    if (not isinstance(value, list) or len(value) != count
-            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in value)):
-        raise ValueError(f"must be {count} numbers")
-    return value
-
-
-def _background(value, base) -> tuple[float, float, float]:
-    rgb = _numbers(value, 3, ",")
-    if min(rgb) < 0 or max(rgb) > 255:
-        raise ValueError("must be R, G, B within 0-1 or 0-255")
-    return tuple(float(x) / 255 if max(rgb) > 1 else float(x) for x in rgb)
-
-
-def _size(value, base) -> tuple[int, int]:
-    w, h = _numbers(value, 2, "x")
-    if not (w == int(w) and h == int(h) and 16 <= w <= MAX_IMAGE_SIDE and 16 <= h <= MAX_IMAGE_SIDE):
-        raise ValueError(f"must be WIDTH, HEIGHT integers within 16..{MAX_IMAGE_SIDE}")
-    return int(w), int(h)
-
-
-def _part_seeds(value, base) -> dict[int, tuple[float, float]]:
-    if not isinstance(value, dict) or not value or not all(k.isdigit() for k in value):
-        raise ValueError("must be a table {PART = [X, Y], …}")
-    return {int(k): tuple(_numbers(xy, 2, ",")) for k, xy in value.items()}
+def _shared(parse: Callable[[Any], Any]) -> Callable[[Any, Path], Any]:
+    """A parser of :mod:`marionette.options` (shared with the command line) as a check."""
+    return lambda value, base: parse(value)
 
 
 #: Extraction options: checks and the defaults of ``marionette run``.
 EXTRACT_OPTIONS = {
     "masks": (_existing("folder"), None), "depth": (_existing("folder"), None),
-    "focal": (_number(0, 1e6, above=True), None), "parts": (_parts, 1), "start": (_integer(0, 10**7), 0),
+    "focal": (_number(0, 1e6, above=True), None), "parts": (_shared(parse_parts), 1),
+    "start": (_integer(0, 10**7), 0),
     "end": (_integer(1, 10**7), None), "stride": (_integer(1, 10**4), 1),
     "max_side": (_integer(16, MAX_IMAGE_SIDE), pipeline.DEFAULT_MAX_SIDE), "smooth": (_number(0, 100), 1.0),
 }
@@ -185,11 +153,11 @@ TRANSFER_OPTIONS = {
     "frames": (_integer(2, 100_000), None), "speed": (_number(0, 100, above=True), 1.0),
     "loop": (_choice(*LOOPS), "hold"), "reverse": (_flag, False),
     "rotation_scale": (_number(-100, 100), 1.0), "translation_scale": (_number(-100, 100), 1.0),
-    "fps": (_number(0, 240, above=True), None), "background": (_background, (1.0, 1.0, 1.0)),
-    "size": (_size, None), "camera": (_choice(*CAMERA_MOVES), "static"),
+    "fps": (_number(0, 240, above=True), None), "background": (_shared(parse_background), (1.0, 1.0, 1.0)),
+    "size": (_shared(parse_size), None), "camera": (_choice(*CAMERA_MOVES), "static"),
     "camera_amount": (_number(-1e4, 1e4), None), "camera_path": (_existing("file"), None),
     "target_mask": (_existing("file"), None), "anchor": (_choice("centroid", "world"), "centroid"),
-    "part_seed": (_part_seeds, None), "format": (_choice("mp4", "gif"), "mp4"),
+    "part_seed": (_shared(parse_part_seeds), None), "format": (_choice("mp4", "gif"), "mp4"),
 }
 
 

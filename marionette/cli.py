@@ -12,7 +12,7 @@ import sys
 import time
 import tomllib
 import warnings
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Annotated, Any, Optional
@@ -27,6 +27,7 @@ from .geometry import rotation_angle_deg
 from .io import read_masks, read_ply, read_prior, read_video, write_image, write_prior, write_splat_animation
 from .io.atomic import check_output_dir, check_output_folder, check_output_path, write_text
 from .io.video import DEFAULT_MAX_PIXELS
+from .options import parse_background, parse_part_seeds, parse_parts, parse_size
 from .plot import plot_prior
 from .progress import Reporter
 from .render import render
@@ -141,54 +142,14 @@ def _prior_figures(prior) -> dict[str, Any]:
             "tracks": prior.metadata.get("num_tracks")}
 
 
-def _parse_rgb(text: str) -> tuple[float, float, float]:
-    """'R,G,B' with components in [0, 1] or 0..255 → floats in [0, 1]."""
-    try:
-        rgb = tuple(float(x) for x in text.split(","))
-    except ValueError:
-        raise InputError(f"--background must be R,G,B numbers, got {text!r}") from None
-    if len(rgb) != 3 or not all(np.isfinite(rgb)) or min(rgb) < 0:
-        raise InputError(f"--background must be three non-negative numbers R,G,B, got {text!r}")
-    if max(rgb) > 1:
-        if max(rgb) > 255:
-            raise InputError(f"--background components must be at most 255, got {text!r}")
-        rgb = tuple(x / 255 for x in rgb)
-    return rgb
-
-
-def _parse_size(text: str | None) -> tuple[int, int] | None:
-    if text is None:
+def _parsed(option: str, parse: Callable[[Any], Any], value: Any) -> Any:
+    """``value`` checked by a parser of :mod:`marionette.options`; None stays None."""
+    if value is None:
         return None
     try:
-        w, h = (int(x) for x in text.lower().split("x"))
-    except ValueError:
-        raise InputError(f"--size must be WIDTHxHEIGHT, got {text!r}") from None
-    if not (16 <= w <= MAX_IMAGE_SIDE and 16 <= h <= MAX_IMAGE_SIDE):
-        raise InputError(f"--size sides must be within 16..{MAX_IMAGE_SIDE}, got {text!r}")
-    return w, h
-
-
-def _parse_parts(text: str) -> int | str:
-    if text == "auto":
-        return "auto"
-    if not text.isdigit() or not 1 <= int(text) <= 8:
-        raise InputError(f"--parts must be 'auto' or an integer from 1 to 8, got {text!r}")
-    return int(text)
-
-
-def _parse_part_seeds(items: list[str] | None) -> dict[int, tuple[float, float]] | None:
-    """['K:X,Y', …] → {K: (X, Y)}."""
-    if not items:
-        return None
-    seeds = {}
-    for item in items:
-        try:
-            part, xy = item.split(":")
-            x, y = (float(v) for v in xy.split(","))
-            seeds[int(part)] = (x, y)
-        except ValueError:
-            raise InputError(f"--part-seed must be K:X,Y (part, target pixel), got {item!r}") from None
-    return seeds
+        return parse(value)
+    except ValueError as e:
+        raise InputError(f"{option} {e}, got {value!r}") from None
 
 
 def _optional_output(path: Optional[Path], suffix: str, option: str) -> None:
@@ -252,7 +213,7 @@ def _check_max_side(max_side: int) -> None:
 def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, stride: int, max_side: int,
              max_pixels: int, smooth: float, plot, session: _Session):
     """Shared by ``extract`` and ``run``: check the options, extract, draw the plot."""
-    parts_value = _parse_parts(parts)
+    parts_value = _parsed("--parts", parse_parts, parts)
     _check_max_side(max_side)
     if max_pixels < 16 * 16 * 2:
         raise InputError(f"--max-pixels must be at least {16 * 16 * 2}, got {max_pixels}")
@@ -374,9 +335,10 @@ def _playback(output: Path, target: Path, frames, speed, loop, reverse, rotation
     if target_mask is not None and not target_mask.is_file():
         raise InputError(f"target mask {target_mask} does not exist")
     pipeline.check_target(target, target_mask, target_depth)
-    return _Playback(frames, speed, loop, reverse, rotation_scale, translation_scale, fps, _parse_rgb(background),
-                     _parse_size(size), camera, camera_amount, camera_path, ply_dir, target_mask, target_depth,
-                     anchor, _parse_part_seeds(part_seed), refine, preview, splats)
+    return _Playback(frames, speed, loop, reverse, rotation_scale, translation_scale, fps,
+                     _parsed("--background", parse_background, background), _parsed("--size", parse_size, size),
+                     camera, camera_amount, camera_path, ply_dir, target_mask, target_depth, anchor,
+                     _parsed("--part-seed", parse_part_seeds, part_seed or None), refine, preview, splats)
 
 
 def _transfer_and_render(prior, target: Path, output: Path, play: _Playback, session: _Session):
@@ -486,7 +448,7 @@ def eval_self_cmd(source: Annotated[Path, typer.Argument(help="Video file or fol
     from .eval import EVAL_EXTRACT, eval_self
 
     _check_max_side(max_side)
-    options = replace(EVAL_EXTRACT, parts=_parse_parts(parts))
+    options = replace(EVAL_EXTRACT, parts=_parsed("--parts", parse_parts, parts))
     if masks is not None and not masks.is_dir():
         raise InputError(f"mask folder {masks} does not exist")
     check_output_dir(output)
@@ -559,7 +521,7 @@ def render_cmd(scene: Annotated[Path, typer.Argument(help="3DGS .ply file.")],
                output: Output, background: Background = "1,1,1", quiet: Quiet = False, verbose: Verbose = False,
                json_summary: Json = False, config: Config = None) -> None:
     """Render a 3DGS .ply from a camera to a PNG."""
-    bg = _parse_rgb(background)
+    bg = _parsed("--background", parse_background, background)
     if output.suffix.lower() not in (".png", ".jpg", ".jpeg"):
         raise InputError(f"unsupported image output {output.name!r}: use .png or .jpg")
     check_output_path(output)

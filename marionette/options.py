@@ -1,0 +1,78 @@
+"""Values of the options that the command line and batch job files share.
+
+Each parser takes an option's command-line text or its TOML value and
+returns the checked value, or raises ``ValueError`` with a reason ("must be
+…") that the caller prefixes with the option's name.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from .camera import MAX_IMAGE_SIDE
+
+__all__ = ["MAX_PARTS", "parse_background", "parse_size", "parse_parts", "parse_part_seeds"]
+
+#: Most rigid parts ``--parts`` may ask for.
+MAX_PARTS = 8
+
+
+def _numbers(value: Any, count: int, separator: str) -> list[float]:
+    """``count`` finite numbers: a list, or a string of them joined by ``separator``."""
+    if isinstance(value, str):
+        try:
+            value = [float(x) for x in value.lower().split(separator)]
+        except ValueError:
+            value = None
+    if (not isinstance(value, list) or len(value) != count
+            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in value)):
+        raise ValueError(f"must be {count} numbers joined by '{separator}'" if count > 1 else "must be a number")
+    return [float(x) for x in value]
+
+
+def parse_background(value: Any) -> tuple[float, float, float]:
+    """``"R,G,B"`` or ``[R, G, B]``, components all within 0-1 or 0-255 → floats in [0, 1]."""
+    rgb = _numbers(value, 3, ",")
+    if min(rgb) < 0 or max(rgb) > 255:
+        raise ValueError("must be R,G,B within 0-1 or 0-255")
+    scale = 255.0 if max(rgb) > 1 else 1.0
+    return rgb[0] / scale, rgb[1] / scale, rgb[2] / scale
+
+
+def parse_size(value: Any) -> tuple[int, int]:
+    """``"WIDTHxHEIGHT"`` or ``[WIDTH, HEIGHT]``, integers within 16..MAX_IMAGE_SIDE."""
+    w, h = _numbers(value, 2, "x")
+    if not (w == int(w) and h == int(h) and 16 <= w <= MAX_IMAGE_SIDE and 16 <= h <= MAX_IMAGE_SIDE):
+        raise ValueError(f"must be WIDTHxHEIGHT, integers within 16..{MAX_IMAGE_SIDE}")
+    return int(w), int(h)
+
+
+def parse_parts(value: Any) -> int | str:
+    """``"auto"`` or a part count 1..MAX_PARTS (an integer or its digits)."""
+    if value == "auto":
+        return "auto"
+    if isinstance(value, str) and value.isdigit():
+        value = int(value)
+    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAX_PARTS:
+        raise ValueError(f"must be 'auto' or an integer from 1 to {MAX_PARTS}")
+    return value
+
+
+def parse_part_seeds(value: Any) -> dict[int, tuple[float, float]]:
+    """Target pixels seeding parts: ``["K:X,Y", …]`` (command line) or ``{K = [X, Y], …}`` (TOML) → {K: (X, Y)}."""
+    if isinstance(value, list) and value and all(isinstance(item, str) for item in value):
+        pairs = [item.split(":", 1) if ":" in item else (item, None) for item in value]
+    elif isinstance(value, dict) and value:
+        pairs = list(value.items())
+    else:
+        pairs = []
+    seeds = {}
+    for part, xy in pairs:
+        if not (isinstance(part, str) and part.isdigit()) or xy is None:
+            raise ValueError("must be K:X,Y (part, target pixel), or the table {K = [X, Y], …} in a job file")
+        x, y = _numbers(xy, 2, ",")
+        seeds[int(part)] = (x, y)
+    if not seeds:
+        raise ValueError("must be K:X,Y (part, target pixel), or the table {K = [X, Y], …} in a job file")
+    return seeds
