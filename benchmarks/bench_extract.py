@@ -22,14 +22,14 @@ whole run.
 from __future__ import annotations
 
 import argparse
-import os
 import dataclasses
+import os
 import platform
 import resource
 import time
 import warnings
-from unittest import mock
 from pathlib import Path
+from unittest import mock
 
 # The bundle adjustment's dense products are small (a few hundred rows); on a
 # busy 2-core machine OpenBLAS threads slow them down tenfold. Must be set

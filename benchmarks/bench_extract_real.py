@@ -94,7 +94,8 @@ def main() -> None:
     for case in CASES:
         runs = args.runs if case.startswith("speed") else 1
         slug = case.split(",")[0].replace(" ", "-")
-        plot = None if case.startswith("speed") else IMAGES / f"extract_{slug}{'-auto' if 'no masks' in case else ''}.png"
+        suffix = "-auto" if "no masks" in case else ""
+        plot = None if case.startswith("speed") else IMAGES / f"extract_{slug}{suffix}.png"
         results = []
         for _ in range(runs):
             cmd = [sys.executable, __file__, "--one", case] + (["--plot", str(plot)] if plot else [])

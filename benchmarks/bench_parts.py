@@ -93,7 +93,8 @@ def main() -> None:
         rows.append((motion, frames, seed, tracks.num_tracks, seg.num_parts, groups(seg), expected, acc,
                      int((seg.track_labels < STATIC).sum()), seg.noise, elapsed))
         print(f"{motion:12s} {frames} frames seed {seed}: tracks {tracks.num_tracks:4d}  moving parts {seg.num_parts}  "
-              f"groups {groups(seg)}  pixel accuracy {acc:5.1f} %  noise {seg.noise:.2f} px  {elapsed:.2f} s", flush=True)
+              f"groups {groups(seg)}  pixel accuracy {acc:5.1f} %  noise {seg.noise:.2f} px  {elapsed:.2f} s",
+              flush=True)
 
     real = []
     for clip, expected in REAL.items():

@@ -38,7 +38,6 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
-
 from paper_setting import measured_run, synthetic_clip  # noqa: E402  (same folder)
 
 ROOT = Path(__file__).resolve().parents[1]

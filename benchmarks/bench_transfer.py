@@ -77,7 +77,8 @@ def main() -> None:
          "from its layout, default refinement (kinematic, topological, propagation, shape matching, joints). "
          f"Median of {args.runs} runs after a warm-up. Target (issue 4): <= 5 s, <= 2 GB; the paper reports "
          "2.2 minutes on an RTX A6000."), "",
-        "| prior | Gaussians | frames | transfer s | render s | total s | fps | rigidity error | boundary separation | detached seam |",
+        "| prior | Gaussians | frames | transfer s | render s | total s | fps | rigidity error | boundary separation"
+        " | detached seam |",
         "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for name, prior in (("one part", one_part), ("two parts, refined", two_parts)):

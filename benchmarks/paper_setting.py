@@ -196,7 +196,8 @@ def report(description: str, runs: list[dict[str, float]], command: str, out: Pa
     lines = [
         "# The paper's setting end to end", "",
         f"`{command}` on {os.cpu_count()} cores (load average {os.getloadavg()[0]:.2f} at the end).",
-        f"Input: {description}; the target lifts to {median['target Gaussians']:,.0f} Gaussians. Each run: `marionette run SOURCE TARGET -o out.mp4` in a fresh process"
+        f"Input: {description}; the target lifts to {median['target Gaussians']:,.0f} Gaussians."
+        " Each run: `marionette run SOURCE TARGET -o out.mp4` in a fresh process"
         " (wall time includes Python start-up, imports and loading the compiled kernels); median of"
         f" {len(runs)} run(s), peak memory the largest `ru_maxrss` of the runs.", "",
         "| stage (paper's Table 2 rows) | paper, RTX A6000 | ours, CPU | ratio |", "|---|---:|---:|---:|",

@@ -42,9 +42,9 @@ from .transfer.parts import labels_from_seeds, seeds_from_layout
 from .transfer.refine import RefineOptions
 from .transfer.velocity import integrate
 
-__all__ = ["extract", "load_target", "relative_depth", "check_target", "check_part_seeds", "transfer", "output_cameras", "fit_view",
-           "render_frames", "render_video", "write_ply_frames", "side_by_side", "write_side_by_side", "write_preview",
-           "source_intrinsics", "DEFAULT_MAX_SIDE", "PLY_FRAME_NAME"]
+__all__ = ["extract", "load_target", "relative_depth", "check_target", "check_part_seeds", "transfer", "output_cameras",
+           "fit_view", "render_frames", "render_video", "write_ply_frames", "side_by_side", "write_side_by_side",
+           "write_preview", "source_intrinsics", "DEFAULT_MAX_SIDE", "PLY_FRAME_NAME"]
 
 #: Names of the per-frame files of :func:`write_ply_frames` (a folder of only these may be replaced).
 PLY_FRAME_NAME = r"\d{5,}\.ply"
@@ -304,7 +304,8 @@ def write_preview(path: str | Path, video: str | Path, *, fps: float, max_side: 
     write_video(path, frames[::step], fps / step)
 
 
-def side_by_side(left: np.ndarray, right: list[np.ndarray] | np.ndarray, *, height: int | None = None) -> Iterator[np.ndarray]:
+def side_by_side(left: np.ndarray, right: list[np.ndarray] | np.ndarray, *,
+                 height: int | None = None) -> Iterator[np.ndarray]:
     """Yield frames with ``left[t]`` beside ``right[t]``, both scaled to one height.
 
     The shorter sequence holds its last frame. (T, H, W, 3) uint8 in, frames out.

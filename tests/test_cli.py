@@ -11,38 +11,13 @@ import pytest
 from marionette.camera import Camera
 from marionette.cli import main
 from marionette.gaussians import Gaussians
-from marionette.geometry import axis_angle_to_matrix, make_transform
-from marionette.io import read_ply, read_prior, read_video, write_ply, write_prior
-from marionette.prior import SpatPrior
+from marionette.io import read_ply, read_prior, read_video, write_ply
 
 
 def one_error_line(capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: "), err
     return err[0]
-
-
-@pytest.fixture
-def prior_file(tmp_path):
-    t = 8
-    c = np.array([0, 0, 4.0])
-    poses = [make_transform(axis_angle_to_matrix([0, 0, 0.1 * i]), [0, 0, 0]) for i in range(t)]
-    poses = np.array([make_transform(np.eye(3), c) @ p @ make_transform(np.eye(3), -c) for p in poses])[None]
-    prior = SpatPrior.from_poses(poses, np.tile(c, (1, t, 1)), np.ones(1), fps=12.0, image_size=(64, 48),
-                                 intrinsics=np.eye(3))
-    path = tmp_path / "prior.npz"
-    write_prior(path, prior)
-    return path
-
-
-@pytest.fixture
-def target_png(tmp_path):
-    img = np.zeros((64, 64, 4), np.uint8)
-    cv2.rectangle(img, (16, 20), (48, 44), (30, 120, 230, 255), -1)
-    cv2.circle(img, (32, 32), 6, (250, 250, 20, 255), -1)
-    path = tmp_path / "target.png"
-    cv2.imwrite(str(path), cv2.cvtColor(img, cv2.COLOR_RGBA2BGRA))
-    return path
 
 
 def test_transfer_writes_a_video_of_the_right_length(tmp_path, prior_file, target_png):

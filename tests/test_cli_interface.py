@@ -5,12 +5,11 @@ import json
 import cv2
 import numpy as np
 import pytest
+from test_cli import one_error_line, write_clip
 
 from marionette.cli import main
 from marionette.io import read_video
 from marionette.synthetic import make_scene
-
-from test_cli import one_error_line, prior_file, target_png, write_clip  # noqa: F401  (fixtures)
 
 
 def test_json_summary_lists_outputs_timings_and_figures(tmp_path, prior_file, target_png, capsys):
@@ -105,7 +104,8 @@ def test_splats_export_holds_every_frame_for_the_viewer(tmp_path, prior_file, ta
     assert not np.allclose(animation.frame(0).means, animation.frame(3).means, atol=1e-4)
     assert main(["view", str(tmp_path / "missing.npz")]) == 2
     assert "missing.npz" in one_error_line(capsys)
-    assert main(["transfer", str(prior_file), str(target_png), "-o", str(out), "--splats", str(tmp_path / "s.ply")]) == 2
+    splats = str(tmp_path / "s.ply")
+    assert main(["transfer", str(prior_file), str(target_png), "-o", str(out), "--splats", splats]) == 2
     assert "--splats" in one_error_line(capsys)
 
 

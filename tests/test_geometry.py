@@ -1,9 +1,17 @@
 import numpy as np
 import pytest
 
-from marionette.geometry import (axis_angle_to_matrix, invert_transform, make_transform,
-                                 matrix_to_axis_angle, matrix_to_quaternion, quaternion_to_matrix,
-                                 rotation_angle_deg, se3_interpolate, umeyama)
+from marionette.geometry import (
+    axis_angle_to_matrix,
+    invert_transform,
+    make_transform,
+    matrix_to_axis_angle,
+    matrix_to_quaternion,
+    quaternion_to_matrix,
+    rotation_angle_deg,
+    se3_interpolate,
+    umeyama,
+)
 
 
 def random_rotations(n, seed=0):

@@ -14,8 +14,6 @@ from marionette.io import write_ply
 from marionette.pipeline import write_ply_frames
 from marionette.trajectory import Trajectory
 
-from test_cli import prior_file, target_png  # noqa: F401  (fixtures)
-
 
 def test_ctrl_c_while_rendering_leaves_nothing_partial(tmp_path, prior_file, target_png):
     out = tmp_path / "out.mp4"

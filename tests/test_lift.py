@@ -123,7 +123,7 @@ def test_depth_map_shapes_the_front_surface_and_keeps_the_reference_view():
     depth[40:44, 40:44] = 0  # unknown values are filled from their neighbours
     lifted = lift_image(img, depth_map=depth)
     g, cam = lifted.gaussians, lifted.camera
-    uv, z = cam.project(g.means)
+    _, z = cam.project(g.means)
     front = np.zeros(len(z), bool)
     for u, v in {tuple(p) for p in lifted.pixel_of[:: 7]}:  # the nearest Gaussian of a pixel is its front one
         at = np.nonzero((lifted.pixel_of[:, 0] == u) & (lifted.pixel_of[:, 1] == v))[0]
@@ -139,7 +139,7 @@ def test_depth_map_shapes_the_front_surface_and_keeps_the_reference_view():
 
 
 def test_bad_depth_maps_are_refused():
-    img, inside = disc_image()
+    img, _ = disc_image()
     with pytest.raises(InputError, match="less than half"):
         lift_image(img, depth_map=np.zeros((96, 96)))
     with pytest.raises(InputError, match="is 48x96"):

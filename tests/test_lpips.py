@@ -1,4 +1,4 @@
-"""LPIPS in NumPy: layers against slow references, weight loading, eval-self plumbing, and the real weights when present."""
+"""LPIPS in NumPy: layers against slow references, weight loading, eval-self plumbing, the real weights if present."""
 
 import os
 import pickle

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from reference_rasterizer import project, render_reference
 
 from marionette.camera import Camera
 from marionette.errors import InputError
@@ -13,8 +14,6 @@ from marionette.geometry import axis_angle_to_matrix, make_transform
 from marionette.render import RenderOutput, eval_sh, render
 from marionette.render.rasterizer import _EXP_LO, _exp_clamped
 from marionette.render.sh import _basis, _eval_sh_one
-
-from reference_rasterizer import project, render_reference
 
 W, H = 50, 40  # non-square; 4 × 3 tiles, the last column and row partial
 

@@ -5,8 +5,7 @@ import pytest
 from scipy.optimize import least_squares
 
 from marionette.errors import InputError
-from marionette.geometry import (axis_angle_to_matrix, make_transform, matrix_to_axis_angle,
-                                 rotation_angle_deg)
+from marionette.geometry import axis_angle_to_matrix, make_transform, matrix_to_axis_angle, rotation_angle_deg
 from marionette.source.smoothing import _LAMBDA_1, _smooth_trajectory, jitter, smooth_poses
 from marionette.synthetic import make_scene
 

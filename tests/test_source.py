@@ -7,7 +7,6 @@ rendered synthetic scenes of ``marionette.synthetic``.
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 
@@ -15,8 +14,13 @@ from marionette.errors import InputError
 from marionette.geometry import axis_angle_to_matrix, make_transform, matrix_to_axis_angle, rotation_angle_deg
 from marionette.source import Tracks, track
 from marionette.source.rigid import ShapePrior, carved_centroid, fit_rigid
-from marionette.source.tracks import (_align_affine, _align_affine_numpy, _normalise, _refine_masked,
-                                      _refine_masked_numpy)
+from marionette.source.tracks import (
+    _align_affine,
+    _align_affine_numpy,
+    _normalise,
+    _refine_masked,
+    _refine_masked_numpy,
+)
 
 K = np.array([[300.0, 0.0, 159.5], [0.0, 300.0, 119.5], [0.0, 0.0, 1.0]])
 W, H = 320, 240
@@ -331,7 +335,7 @@ def test_inflated_disc_is_a_unit_sphere():
 
 
 def test_raycast_at_frame_zero_lands_on_the_front():
-    front, back, hit = ellipsoid_depths((1.2, 0.8, 0.6))
+    front, back, _ = ellipsoid_depths((1.2, 0.8, 0.6))
     shape = ShapePrior.from_depths(front, back, K)
     uv = np.array([[160.0, 120.0], [180.5, 100.25], [100.0, 140.0], [5.0, 5.0]])
     pts = shape.raycast(uv, np.eye(4))
@@ -344,7 +348,7 @@ def test_raycast_at_frame_zero_lands_on_the_front():
 
 def test_carving_finds_the_centre_of_a_turning_body():
     axes = (1.2, 0.8, 0.6)
-    front, back, hit = ellipsoid_depths(axes)
+    front, _, hit = ellipsoid_depths(axes)
     shape = ShapePrior.inflate(hit, K, relief=2.0)  # too deep on purpose: its centroid lies behind the true one
     _, poses = ellipsoid_tracks(axes=axes, axis=(0.0, 1.0, 0.0), angle_deg=90.0)
     masks = np.stack([ellipsoid_depths(axes, p[:3, :3], p[:3, :3] @ CENTRE + p[:3, 3])[2] for p in poses])

@@ -5,5 +5,5 @@ from .metrics import frame_metrics, on_white
 from .report import run_report
 from .self_eval import EVAL_EXTRACT, eval_self, self_target
 
-__all__ = ["eval_self", "EVAL_EXTRACT", "self_target", "motion_fidelity", "FidelityOptions", "frame_metrics", "on_white",
-           "run_report"]
+__all__ = ["eval_self", "EVAL_EXTRACT", "self_target", "motion_fidelity", "FidelityOptions", "frame_metrics",
+           "on_white", "run_report"]

@@ -13,8 +13,8 @@ from pathlib import Path
 
 from ..errors import InputError
 
-__all__ = ["atomic_path", "atomic_folder", "write_text", "leftover_temporaries", "check_output_path", "check_output_dir",
-           "check_output_folder"]
+__all__ = ["atomic_path", "atomic_folder", "write_text", "leftover_temporaries", "check_output_path",
+           "check_output_dir", "check_output_folder"]
 
 
 def _check_parent(path: Path) -> None:

@@ -299,7 +299,8 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
         for i, g in enumerate(groups):
             pixels = pixel_labels == g
             members = track_labels == g
-            shape = ShapePrior.from_depths(np.where(pixels, whole.front, np.nan), np.where(pixels, whole.back, np.nan), k)
+            shape = ShapePrior.from_depths(np.where(pixels, whole.front, np.nan), np.where(pixels, whole.back, np.nan),
+                                           k)
 
             def step(done: int, total: int, i=i) -> None:
                 progress(i * num_frames + round(done * num_frames / max(total, 1)), len(groups) * num_frames)
@@ -339,7 +340,8 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
     failed = {f"{index}:{t}": reason for index, part in enumerate(parts) for t, reason in part.failed.items()}
     if failed:
         listed = ", ".join(list(failed)[:10])
-        warnings.warn(f"pose estimation failed at {len(failed)} part-frames ({listed}{'…' if len(failed) > 10 else ''}); "
+        more = "…" if len(failed) > 10 else ""
+        warnings.warn(f"pose estimation failed at {len(failed)} part-frames ({listed}{more}); "
                       "their poses are interpolated (see metadata 'failed_frames')", stacklevel=2)
     stages.timings["total"] = time.perf_counter() - start
     metadata.update(failed_frames=failed, no_motion=False, motion_px=float(motion) if np.isfinite(motion) else None,

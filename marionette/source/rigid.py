@@ -445,7 +445,10 @@ def _huber_weights(norms: np.ndarray, scale: float) -> tuple[np.ndarray, float]:
 
 
 def _left_jacobian(w: np.ndarray) -> np.ndarray:
-    """Left Jacobians (F, 3, 3) of the rotation exponential at rotation vectors w (F, 3): exp(w + δ) ≈ exp(J δ) exp(w)."""
+    """Left Jacobians (F, 3, 3) of the rotation exponential at rotation vectors w (F, 3).
+
+    exp(w + δ) ≈ exp(J δ) exp(w).
+    """
     theta = np.linalg.norm(w, axis=1)[:, None, None]
     small = theta < 1e-6
     theta = np.where(small, 1.0, theta)

@@ -99,7 +99,9 @@ def smooth_poses(poses: np.ndarray, strength: float = 1.0, *, centers: np.ndarra
             # Positions get the same floor, as the arc a rotation by it sweeps at the part's distance.
             reach = max(np.linalg.norm(pos, axis=1).max(), 1e-9)
             floor = np.radians(_MIN_THRESHOLD_DEG) * np.array([1.0, reach])
-            threshold = lambda norms, floor=floor: np.maximum(_HUBER_MEDIANS * np.median(norms, axis=0), floor)
+
+            def threshold(norms: np.ndarray, floor: np.ndarray = floor) -> np.ndarray:
+                return np.maximum(_HUBER_MEDIANS * np.median(norms, axis=0), floor)
         rot_s, pos_s = _smooth_trajectory(rot, pos, lam, threshold)
         out[k, 1:, :3, :3] = rot_s[1:]
         out[k, 1:, :3, 3] = pos_s[1:] - rot_s[1:] @ centers[k]

@@ -85,7 +85,7 @@ def background_texture(rng: np.random.Generator, shape: tuple[int, int]) -> np.n
     tracker finds background corners too (so masks matter), not enough to
     compete with the object.
     """
-    h, w = shape
+    w = shape[1]
     lum = fractal_noise(rng, shape, (w / 6, w / 14, w / 30, w / 60), (0.45, 0.3, 0.2, 0.15))
     tint = fractal_noise(rng, shape, (w / 5,), (1.0,))
     hue = rng.random()

@@ -18,8 +18,8 @@ from scipy.sparse.linalg import spsolve
 
 from ..camera import Camera
 from ..errors import InputError
-from ..segment import grabcut_mask, salient_mask
 from ..gaussians import Gaussians
+from ..segment import grabcut_mask, salient_mask
 
 __all__ = ["LiftOptions", "LiftedTarget", "lift_image", "object_mask", "alpha_mask", "inflate_silhouette",
            "depth_for_radius"]

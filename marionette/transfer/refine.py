@@ -30,8 +30,9 @@ per frame) whose neighbours are mostly dynamic takes their mean velocity.
 Shape matching (position-based dynamics, Müller et al. 2005; beyond the
 paper): after the Euler step each active patch ``P`` (a Gaussian and its
 patch neighbours) is matched to its rest shape by the best rotation
-``R_P`` (Kabsch's optimum, found by Müller et al. 2016's warm-started iteration) and each active Gaussian moves to its goal, averaged over
-the patches ``P ∋ i``::
+``R_P`` (Kabsch's optimum, found by Müller et al. 2016's warm-started
+iteration) and each active Gaussian moves to its goal, averaged over the
+patches ``P ∋ i``::
 
     g_i = mean_{P∋i} R_P (x⁰_i − c⁰_P) + c_P
 

@@ -76,15 +76,15 @@ def velocity_step(means: np.ndarray, rotation: np.ndarray, translation: np.ndarr
     return means @ (rotation - np.eye(3)).T + offset
 
 
-def _source_joint(prior: SpatPrior, k: int, l: int) -> np.ndarray:
-    """(3,) point the source poses of parts k and l move alike: argmin_p Σ_t |T_k(t) p − T_l(t) p|².
+def _source_joint(prior: SpatPrior, k: int, j: int) -> np.ndarray:
+    """(3,) point the source poses of parts k and j move alike: argmin_p Σ_t |T_k(t) p − T_j(t) p|².
 
     A small pull towards the midpoint of the two centres picks one point when
     the motion leaves a line (a hinge axis) or everything (no relative motion) free.
     """
-    a = prior.poses[k, :, :3, :3] - prior.poses[l, :, :3, :3]  # (T, 3, 3)
-    b = prior.poses[l, :, :3, 3] - prior.poses[k, :, :3, 3]
-    mid = (prior.centroids[k, 0] + prior.centroids[l, 0]) / 2
+    a = prior.poses[k, :, :3, :3] - prior.poses[j, :, :3, :3]  # (T, 3, 3)
+    b = prior.poses[j, :, :3, 3] - prior.poses[k, :, :3, 3]
+    mid = (prior.centroids[k, 0] + prior.centroids[j, 0]) / 2
     pull = 1e-3 * np.sqrt(prior.num_frames)
     lhs = np.concatenate([a.reshape(-1, 3), pull * np.eye(3)])
     rhs = np.concatenate([b.ravel(), pull * mid])
@@ -127,15 +127,15 @@ def joint_tree(means: np.ndarray, labels: np.ndarray, prior: SpatPrior, near: np
         while walk < len(order):  # breadth first: `order` grows while we walk it
             k = order[walk]
             walk += 1
-            for l in np.nonzero(held[k])[0]:
-                if l in order:
+            for j in np.nonzero(held[k])[0]:
+                if j in order:
                     continue
-                guess = cents[l] + (_source_joint(prior, k, l) - prior.centroids[l, 0]) * radii[l] / prior.radii[l]
-                seam = (labels == k) & (labels[near] == l).any(axis=1) | (labels == l) & (labels[near] == k).any(axis=1)
+                guess = cents[j] + (_source_joint(prior, k, j) - prior.centroids[j, 0]) * radii[j] / prior.radii[j]
+                seam = (labels == k) & (labels[near] == j).any(axis=1) | (labels == j) & (labels[near] == k).any(axis=1)
                 cand = np.nonzero(seam)[0]
-                joints[l] = means[cand[np.argmin(np.linalg.norm(means[cand] - guess, axis=1))]]
-                parent[l] = k
-                order.append(int(l))
+                joints[j] = means[cand[np.argmin(np.linalg.norm(means[cand] - guess, axis=1))]]
+                parent[j] = k
+                order.append(int(j))
     return order, parent, joints
 
 
