@@ -51,6 +51,8 @@ BENCHES = (
     Bench("bench_table1.py", "table1.md", needs_data=True, quick=("--clips", "car-shadow")),
     Bench("bench_extract.py", "extract.md", quick=("--seeds", "1", "--frames", "24", "--size", "160x120",
                                                    "--large", "0")),
+    Bench("bench_tracks.py", "tracks.md", quick=("--seeds", "1", "--frames", "24", "--size", "160x120",
+                                                 "--noise", "0")),
     Bench("bench_parts.py", "parts.md", quick=("--seeds", "1", "--frames", "24", "--size", "160x120")),
     Bench("bench_extract_real.py", "extract_real.md", needs_data=True, quick=("--runs", "1")),
     Bench("bench_foreground.py", "foreground.md", needs_data=True),
@@ -69,7 +71,8 @@ SECTIONS = (
      " camera, compared with the masked source frames on white).", ("table1.md",)),
     ("Pose accuracy on the synthetic suite",
      "Rotation and centroid errors against exact ground truth, by motion type and tracking noise; rigid parts"
-     " found on the synthetic hinge.", ("extract.md", "parts.md")),
+     " found on the synthetic hinge; the accuracy of the tracks they come from.",
+     ("extract.md", "tracks.md", "parts.md")),
     ("Time and memory in the paper's setting",
      "50 source frames at 854x480 and a 512x512 target, next to the paper's Table 2 (26.8 minutes on an RTX"
      " A6000); peak memory on long videos.", ("paper_setting.md", "memory.md")),
