@@ -17,8 +17,10 @@ fit. Writes ``docs/benchmarks/extract.md``.
 
 The table also times one larger video (``--large``, outofplane, 50 frames;
 ``--large 0`` skips it) per stage, and reports the peak resident memory of the
-whole run. A last table shows how the rotation error grows when the focal
-length given is off (``--focal-scales``; real clips come without one).
+whole run. Two more tables: the hinge extracted with ``parts="auto"`` (the
+rotation error of its moving part, the lid), and how the rotation error grows
+when the focal length given is off (``--focal-scales``; real clips come
+without one).
 """
 
 from __future__ import annotations
@@ -41,8 +43,8 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 from marionette.geometry import rotation_angle_deg  # noqa: E402
+from marionette.source import ExtractOptions, extract_prior  # noqa: E402
 from marionette.source import extract as extract_module  # noqa: E402
-from marionette.source import extract_prior  # noqa: E402
 from marionette.synthetic import make_scene  # noqa: E402
 
 # "hinge" has two parts; this one-part path is scored against part 0 (the body, the largest part).
@@ -103,6 +105,35 @@ def focal_sensitivity(scales: list[float], rows: list, seeds: int, frames: int, 
                       flush=True)
         lines.append(f"| {motion} | " + " | ".join(f"{np.median(by_scale[f]):.2f}" for f in sorted(by_scale)) + " |")
     return lines
+
+
+def hinge_parts(seeds: int, frames: int, size: tuple[int, int]) -> list[str]:
+    """Markdown lines: the hinge extracted with ``parts="auto"``, the rotation error of its lid per seed."""
+    lines = ["", "The hinge with `parts=\"auto\"` (no noise): parts found and the median rotation error of the"
+             " moving part, the lid (target <= 1°), scored as the best-matching extracted part.", "",
+             "| seed | parts | lid rotation (deg) | body rotation (deg) | time (s) |", "|---|---|---|---|---|"]
+    for seed in range(seeds):
+        scene = make_scene("hinge", seed=seed, num_frames=frames, size=size)
+        start = time.perf_counter()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            prior = extract_prior(scene.frames, scene.masks, scene.camera.K, scene.fps,
+                                  options=ExtractOptions(parts="auto"))
+        elapsed = time.perf_counter() - start
+        rot = [[float(np.median(rotation_angle_deg(np.swapaxes(prior.poses[k, 1:, :3, :3], -1, -2)
+                                                   @ scene.poses[part, 1:, :3, :3]))) for k in range(prior.num_parts)]
+               for part in (0, 1)]
+        body, lid = min(rot[0]), min(rot[1])
+        lines.append(f"| {seed} | {prior.num_parts} | {lid:.2f} | {body:.2f} | {elapsed:.2f} |")
+        print(f"hinge auto   seed {seed}: {prior.num_parts} parts, lid {lid:.2f} deg, body {body:.2f} deg", flush=True)
+    return lines + [
+        "", "Reading: the lid is a thin slab seen obliquely; as it opens its top face turns edge-on and its underside"
+        " comes into view. Its rotation is underestimated from the first frames on, and the error jumps when the"
+        " top face turns away. Measured with tracks made on the lid alone (true per-frame lid masks, so no window"
+        " straddles the box): the lid's median error is still 4.7-15.6°, its tracks drift as its faces"
+        " foreshorten (`tracks.md`), and even where they are within 0.15 px (frames 1-8) the error grows to 2.5°"
+        " by frame 10: a near-planar part under near-affine viewing leaves its tilt and its rotation about an"
+        " in-plane axis weakly separable, and the inflated shape prior's tilt is wrong for a box's top face."]
 
 
 def main() -> None:
@@ -177,6 +208,8 @@ def main() -> None:
     if args.focal_scales != "0":
         lines += focal_sensitivity([float(v) for v in args.focal_scales.split(",")], rows, args.seeds, args.frames,
                                    size)
+    if "hinge" in motions:
+        lines += hinge_parts(args.seeds, args.frames, size)
     if args.large != "0":
         large = tuple(int(v) for v in args.large.split("x"))
         scene = make_scene("outofplane", seed=0, num_frames=50, size=large)
