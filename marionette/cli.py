@@ -130,6 +130,20 @@ def _session(command: str, quiet: bool, verbose: bool, as_json: bool) -> Iterato
     session.reporter.detail(f"  total: {timings['total']:.2f} s")
 
 
+def _prior_line(prior) -> str:
+    """One line on an extracted prior: per part, how far it turns and how far its centre travels."""
+    figures = _prior_figures(prior)
+    parts = []
+    for k in range(prior.num_parts):
+        if np.allclose(prior.poses[k], np.eye(4)):
+            parts.append(f"part {k} static")
+        else:
+            parts.append(f"part {k} turns up to {figures['max_rotation_deg'][k]:.1f}° and travels "
+                         f"{figures['centre_path_in_radii'][k]:.2f} radii")
+    plural = "s" if prior.num_parts > 1 else ""
+    return f"motion: {prior.num_parts} part{plural} over {prior.num_frames} frames; " + "; ".join(parts)
+
+
 def _prior_figures(prior) -> dict[str, Any]:
     """What a user wants to know about an extracted prior, JSON-ready."""
     turned = rotation_angle_deg(prior.poses[:, :, :3, :3])  # (K, T)
@@ -225,6 +239,7 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
                              max_pixels=max_pixels, start=start,
                              end=end, stride=stride, options=options, reporter=session.reporter)
     session.figures["source"] = _prior_figures(prior)
+    session.reporter.message(_prior_line(prior))
     if plot is not None:
         plot_prior(prior, plot, title=Path(source).name)
         session.output("plot", plot)

@@ -9,9 +9,11 @@ import numpy as np
 import pytest
 
 from marionette.camera import Camera
-from marionette.cli import main
+from marionette.cli import _prior_line, main
 from marionette.gaussians import Gaussians
+from marionette.geometry import axis_angle_to_matrix, make_transform
 from marionette.io import read_ply, read_prior, read_video, write_ply
+from marionette.prior import SpatPrior
 
 
 def one_error_line(capsys):
@@ -170,3 +172,15 @@ def test_demo_writes_its_videos(tmp_path):
         assert (out / name).stat().st_size > 0, name
     result = read_video(out / "result.mp4")
     assert result.frames.shape[0] == read_video(out / "source.mp4").frames.shape[0]
+
+
+def test_the_extracted_motion_is_summed_up_in_one_line():
+    t = 5
+    turning = [make_transform(axis_angle_to_matrix([0, np.radians(22.5) * i, 0]), [0, 0, 0]) for i in range(t)]
+    poses = np.stack([np.tile(np.eye(4), (t, 1, 1)), np.array(turning)])
+    centres = np.zeros((2, t, 3))
+    centres[1, :, 0] = np.arange(t) * 0.5  # 2 units in all, the part radius 2 → 1 radius
+    prior = SpatPrior.from_poses(poses, centres, np.array([1.0, 2.0]), fps=10.0, image_size=(64, 48),
+                                 intrinsics=np.eye(3))
+    line = _prior_line(prior)
+    assert line == "motion: 2 parts over 5 frames; part 0 static; part 1 turns up to 90.0° and travels 1.00 radii"
