@@ -148,7 +148,10 @@ def test_oscillation_jitter_removed_amplitude_kept(oscillation):
     assert np.ptp(swing) >= 0.95 * np.ptp(swing_gt)
     # The centroid path gets closer to the truth too.
     c0 = oscillation.centroids()[:, 0]
-    path = lambda p: np.einsum("ktij,kj->kti", p[..., :3, :3], c0) + p[..., :3, 3]
+
+    def path(poses):
+        return np.einsum("ktij,kj->kti", poses[..., :3, :3], c0) + poses[..., :3, 3]
+
     truth = oscillation.centroids()
     assert (np.linalg.norm(path(out) - truth, axis=-1).mean()
             < 0.8 * np.linalg.norm(path(noisy) - truth, axis=-1).mean())
