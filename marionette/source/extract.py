@@ -46,7 +46,7 @@ from .rigid import RigidOptions, ShapePrior, carved_centroid, fit_rigid
 from .smoothing import smooth_poses
 from .tracks import Tracks, _check_video, track
 
-__all__ = ["ExtractOptions", "extract_prior"]
+__all__ = ["ExtractOptions", "extract_prior", "whole_object_poses"]
 
 #: Camera motion is removed only when, in 90 % of the frames, at least this
 #: share of the background tracks agrees with the fitted camera rotation.
@@ -145,6 +145,17 @@ def _propagate_labels(tracks: Tracks, labels: np.ndarray, unlabelled: int, radiu
                 values, counts = np.unique(votes, return_counts=True)
                 labels[m] = values[counts.argmax()]
     return labels
+
+
+def whole_object_poses(tracks: Tracks, shape: ShapePrior, options: RigidOptions = RigidOptions()) -> np.ndarray:
+    """(T, 4, 4) camera-frame poses of the whole object as one rigid body, by :func:`fit_rigid`.
+
+    Translations are in units of the object's frame-0 depth, as
+    :func:`~marionette.source.parts.segment_parts` takes them (``whole``).
+    """
+    poses = fit_rigid(tracks, shape, options=options).poses
+    poses[:, :3, 3] /= shape.centroid[2]
+    return poses
 
 
 def _check_inputs(camera_K, fps, depths, shape: tuple[int, int, int]) -> np.ndarray:
@@ -286,7 +297,8 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
         groups = [0]
     else:
         with stages("parts", "finding parts", 1) as progress:
-            seg = segment_parts(tracks, masks[0], k, options.parts)
+            seg = segment_parts(tracks, masks[0], k, options.parts,
+                                whole=whole_object_poses(tracks, whole, options.rigid))
             progress(1, 1)
         track_labels = _propagate_labels(tracks, seg.track_labels, OUTLIER, radius=3.0 * options.spacing)
         pixel_labels = seg.pixel_labels

@@ -34,6 +34,10 @@ with spatial smoothing in the spirit of PEARL (Isack & Boykov, IJCV 2012):
    seeds spread over their part of the frame-0 object and of all of them,
    each refitted to the tracks it explains (RMS reprojection error below
    ``threshold``) while that lowers its truncated quadratic cost (MSAC);
+   for the first part, the whole object's motion when the caller has one
+   (``whole``: :func:`~marionette.source.extract_prior` passes the full
+   pose estimator's, which a long out-of-plane turn does not defeat, unlike
+   the fits here that start from a fronto-parallel surface);
    and, once a part exists, the motions of halves of the object (the half
    of the frame-0 tracks nearest each of a few spread seeds). The halves are
    there because the motions found may explain every track within the
@@ -47,7 +51,9 @@ with spatial smoothing in the spirit of PEARL (Isack & Boykov, IJCV 2012):
    the mean squared reprojection error of track m under motion l, ``n_m``
    its number of frames and ``ρ(e) = min(e / σ², τ²)``; then each motion is
    refitted to the tracks of its label that it explains (or cannot judge
-   yet, so that it extends in time); a few rounds. A part left with fewer
+   yet, so that it extends in time; with ``whole`` given, the first part's
+   motion gives way only to a refit that explains its tracks better); a
+   few rounds. A part left with fewer
    than ``5 %`` of the frame-0 tracks (at least 8) is dropped; growing
    stops when no candidate adds a part.
 4. ``"auto"`` grows parts up to ``max_parts``, stops after the first count
@@ -376,13 +382,13 @@ def _bundle_adjust(motion: _Motion, points: np.ndarray, prior: np.ndarray, obs: 
 
 
 def _fit_motion(obs: np.ndarray, vis: np.ndarray, prior_weight: float, iterations: int = 20,
-                min_points: int = 4) -> _Motion:
-    """Rigid motion of N tracks (all on one part): :func:`_initial_motion`, then bundle adjustment.
+                min_points: int = 4, start: _Motion | None = None) -> _Motion:
+    """Rigid motion of N tracks (all on one part): :func:`_initial_motion` (or ``start``), then bundle adjustment.
 
     obs (T, N, 2), vis (T, N). Frames where fewer than ``min_points`` of
     the tracks are visible are not known to the motion.
     """
-    motion = _initial_motion(obs, vis, min_points)
+    motion = _initial_motion(obs, vis, min_points) if start is None else start
     motion = motion._replace(known=motion.known & (vis.sum(axis=1) >= min_points))
     vis = vis & motion.known[:, None]
     points, _, _ = _triangulate(motion, obs, vis, prior_weight)
@@ -411,6 +417,7 @@ class _Problem(NamedTuple):
     cap: float  # τ² = (threshold / noise)²
     fit_tracks: int
     rng: np.random.Generator
+    guarded_refits: bool = False  # the first part's refit replaces its motion only when better (``whole`` given)
 
 
 def _errors(problem: _Problem, motion: _Motion, idx: np.ndarray | None = None) -> np.ndarray:
@@ -425,11 +432,11 @@ def _errors(problem: _Problem, motion: _Motion, idx: np.ndarray | None = None) -
     return np.where(n >= 3, err.sum(axis=0) / np.maximum(n, 1) * problem.focal**2, np.inf)
 
 
-def _fit(problem: _Problem, idx: np.ndarray) -> _Motion:
-    """Rigid motion of tracks ``idx``, fitted on at most ``fit_tracks`` of them (drawn at random)."""
+def _fit(problem: _Problem, idx: np.ndarray, start: _Motion | None = None) -> _Motion:
+    """Rigid motion of tracks ``idx``, fitted on at most ``fit_tracks`` of them (drawn at random), from ``start``."""
     if len(idx) > problem.fit_tracks:
         idx = np.sort(problem.rng.choice(idx, problem.fit_tracks, replace=False))
-    return _fit_motion(problem.obs[:, idx], problem.vis[:, idx], problem.prior_weight)
+    return _fit_motion(problem.obs[:, idx], problem.vis[:, idx], problem.prior_weight, start=start)
 
 
 def _robust(problem: _Problem, errors: np.ndarray, idx: np.ndarray | None = None) -> np.ndarray:
@@ -580,8 +587,15 @@ def _refine(problem: _Problem, graph: sparse.csr_matrix, beta: float, motions: l
             # (and those it cannot judge yet, seen in too few of its frames: so it extends in time).
             members = np.nonzero((labels == part) & ((errors[part] < threshold) | np.isinf(errors[part])))[0]
             if len(members) >= min_part:
-                motions[part] = _fit(problem, members)
-                errors[part] = _errors(problem, motions[part])
+                refit = _fit(problem, members)
+                refit_errors = _errors(problem, refit)
+                mine = labels == part
+                # A refit starts from a fronto-parallel surface; the first part's motion, grown from the
+                # full pose estimator's (``whole``), may be far better, so it only gives way to a better refit.
+                if not (problem.guarded_refits and part == first_moving) or (
+                        _robust(problem, refit_errors[mine], mine).sum()
+                        < _robust(problem, errors[part][mine], mine).sum()):
+                    motions[part], errors[part] = refit, refit_errors
     # A part with too few tracks on the object at frame 0 was not one.
     labels = _icm(_robust(problem, errors), graph, beta, labels)
     sizes = np.bincount(labels[problem.vis[0]], minlength=len(motions))
@@ -596,10 +610,12 @@ def _refine(problem: _Problem, graph: sparse.csr_matrix, beta: float, motions: l
 
 
 def _grow(problem: _Problem, uv: np.ndarray, graph: sparse.csr_matrix, beta: float, static: bool, max_parts: int,
-          min_part: int, penalty: float, hypotheses: int, patch: int, rounds: int, auto: bool) -> dict[int, _Level]:
+          min_part: int, penalty: float, hypotheses: int, patch: int, rounds: int, auto: bool,
+          whole: _Motion | None = None) -> dict[int, _Level]:
     """Add moving parts one at a time, refining all labels and motions after each; every level by P.
 
-    ``auto``: stop after the first level whose score is not below the best before.
+    ``auto``: stop after the first level whose score is not below the best before. ``whole``: a motion
+    of the whole object, one more candidate for the first part.
     """
     num_frames, num_tracks = problem.vis.shape
     motions = [_static_motion(num_frames)] if static else []
@@ -621,6 +637,8 @@ def _grow(problem: _Problem, uv: np.ndarray, graph: sparse.csr_matrix, beta: flo
         if len(motions) > first_moving:
             candidates += [_fit(problem, _patch(uv[0], first, seed, len(first) // 2))
                            for seed in _spread(uv[0], first, hypotheses)]
+        elif whole is not None:
+            candidates.append(whole)
         best = None
         for motion in candidates:
             level = _refine(problem, graph, beta, motions + [motion], np.vstack([errors, _errors(problem, motion)]),
@@ -671,7 +689,7 @@ def segment_parts(tracks: Tracks, object_mask0: np.ndarray, K: np.ndarray, num_p
                   penalty: float = 3.0,
                   smoothness: float = 3.0, neighbours: int = 8, min_length: int = 4, static: bool = True,
                   max_frames: int = 24, hypotheses: int = 4, patch: int = 24, fit_tracks: int = 1000,
-                  rounds: int = 2, seed: int = 0) -> PartSegmentation:
+                  rounds: int = 2, seed: int = 0, whole: np.ndarray | None = None) -> PartSegmentation:
     """Segment an object's tracks into rigid parts (see the module docstring for the method).
 
     Parameters
@@ -719,6 +737,15 @@ def segment_parts(tracks: Tracks, object_mask0: np.ndarray, K: np.ndarray, num_p
         (drawn at random); label/motion refinement rounds.
     seed : int
         Seed of the random draws.
+    whole : ndarray, shape (T, 4, 4), optional
+        Camera-frame poses of the whole object as one rigid body (e.g.
+        :func:`~marionette.source.rigid.fit_rigid`'s), translations in units
+        of the object's frame-0 depth: one more candidate for the first part,
+        refined from there. The segmentation's own fits start from a
+        fronto-parallel surface, which a long out-of-plane turn defeats (on
+        ``davis_car-turn`` such a fit explains half the tracks, the full pose
+        estimator's 94 %); a refit replaces a part's motion only when it
+        explains the part's tracks better.
 
     Returns
     -------
@@ -764,8 +791,20 @@ def segment_parts(tracks: Tracks, object_mask0: np.ndarray, K: np.ndarray, num_p
     problem = problem._replace(noise=float(noise), cap=float(threshold / noise) ** 2)
     graph = _neighbour_graph(uv, vis, problem.start, neighbours)
     beta = smoothness * problem.cap * float(np.median(frames)) / neighbours
+    start = None
+    if whole is not None:
+        whole = np.asarray(whole, dtype=np.float64)
+        if whole.shape != (tracks.num_frames, 4, 4) or not np.isfinite(whole).all():
+            raise InputError(f"segment_parts: whole must be finite ({tracks.num_frames}, 4, 4) poses, "
+                             f"got shape {whole.shape}")
+        rot, trans = whole[kept, :3, :3], whole[kept, :3, 3]
+        # New points go at the depth of the frame-0 point on the optical axis at depth 1, moved.
+        start = _fit(problem, np.arange(vis.shape[1]),
+                     start=_Motion(rot, trans, rot[:, 2, 2] + trans[:, 2], vis.sum(axis=1) >= 4))
+        problem = problem._replace(guarded_refits=True)
+
     levels = _grow(problem, uv, graph, beta, static, max_parts if auto else int(num_parts), min_part,
-                   penalty * problem.cap, hypotheses, patch, rounds, auto)
+                   penalty * problem.cap, hypotheses, patch, rounds, auto, whole=start)
     if not levels:  # everything is static
         num_tracks = vis.shape[1]
         chosen = _Level([_static_motion(len(vis))], np.zeros(num_tracks, np.int64), np.zeros((1, num_tracks)), 0.0)
