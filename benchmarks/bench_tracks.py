@@ -59,10 +59,7 @@ def settings(blur: float | None, norm: float | None):
     """The tracker with other pre-blur and normalisation scales (None: its own)."""
     if blur is None:
         return contextlib.nullcontext()
-    stack = contextlib.ExitStack()
-    stack.enter_context(mock.patch.object(tracks_module, "_BLUR_SIGMA", blur))
-    stack.enter_context(mock.patch.object(tracks_module, "_NORM_SIGMA", norm))
-    return stack
+    return mock.patch.multiple(tracks_module, _BLUR_SIGMA=blur, _NORM_SIGMA=norm)
 
 
 def main() -> None:

@@ -61,18 +61,9 @@ def parse_parts(value: Any) -> int | str:
 
 def parse_part_seeds(value: Any) -> dict[int, tuple[float, float]]:
     """Target pixels seeding parts: ``["K:X,Y", …]`` (command line) or ``{K = [X, Y], …}`` (TOML) → {K: (X, Y)}."""
-    if isinstance(value, list) and value and all(isinstance(item, str) for item in value):
-        pairs = [item.split(":", 1) if ":" in item else (item, None) for item in value]
-    elif isinstance(value, dict) and value:
-        pairs = list(value.items())
-    else:
-        pairs = []
-    seeds = {}
-    for part, xy in pairs:
-        if not (isinstance(part, str) and part.isdigit()) or xy is None:
-            raise ValueError("must be K:X,Y (part, target pixel), or the table {K = [X, Y], …} in a job file")
-        x, y = _numbers(xy, 2, ",")
-        seeds[int(part)] = (x, y)
-    if not seeds:
+    if isinstance(value, list) and all(isinstance(item, str) for item in value):
+        value = dict(item.partition(":")[::2] for item in value)  # "K:X,Y" → {"K": "X,Y"}
+    if not (isinstance(value, dict) and value and all(isinstance(k, str) and k.isdigit() and xy
+                                                      for k, xy in value.items())):
         raise ValueError("must be K:X,Y (part, target pixel), or the table {K = [X, Y], …} in a job file")
-    return seeds
+    return {int(part): tuple(_numbers(xy, 2, ",")) for part, xy in value.items()}
