@@ -206,7 +206,8 @@ def _browser(url: str):
     after 60 s). Polling, rather than ``--screenshot``, because Chromium's
     virtual time does not wait for websocket messages: on a busy machine a
     one-shot screenshot is often taken before the scene has arrived."""
-    with tempfile.TemporaryDirectory() as profile:
+    # Chromium's helper processes may still write to the profile after the browser exits.
+    with tempfile.TemporaryDirectory(ignore_cleanup_errors=True) as profile:
         browser = subprocess.Popen(
             [str(CHROMIUM), "--headless", "--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader",
              "--disable-quic", "--no-first-run", "--disable-background-networking",
