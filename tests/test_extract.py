@@ -35,6 +35,25 @@ def test_still_video_warns_and_returns_identity():
     np.testing.assert_allclose(prior.centroids[0], np.tile(prior.centroids[0, :1], (4, 1)))
 
 
+def test_a_small_moving_part_is_motion():
+    # A square about a seventh the size of a still object slides 2 px a frame (a lid on a still body): most tracks do
+    # not move, which is no reason to declare the video motionless.
+    still, frames, masks = wave_texture(), [], []
+    for t in range(4):
+        frame, mask = still.copy(), disc(70)
+        moving = wave_texture(shift=(0.0, 2.0 * t), seed=1)
+        frame[100 + 2 * t:145 + 2 * t, 165:210] = moving[100 + 2 * t:145 + 2 * t, 165:210]
+        mask[100 + 2 * t:145 + 2 * t, 165:210] = True
+        frames.append(frame)
+        masks.append(mask)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        prior = extract_prior(np.stack(frames), np.stack(masks), K, 24.0,
+                              options=ExtractOptions(camera_motion=False))
+    assert not any("no motion" in str(w.message) for w in caught)
+    assert prior.metadata["no_motion"] is False and prior.metadata["motion_px"] >= 3.0
+
+
 def test_textureless_object_warns_and_returns_identity():
     frames = np.full((4, H, W, 3), 200, np.uint8)
     frames[:, 60:180, 100:220] = 90  # a flat grey square: nothing trackable

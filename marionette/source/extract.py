@@ -75,9 +75,11 @@ class ExtractOptions:
         Half-thickness of the inflated shape prior relative to the mask's
         inscribed radius (1: a disc mask becomes a sphere).
     motion_threshold : float
-        Pixels. When the median track displacement from its start stays below
-        this at every frame, the video is declared motionless and the
-        identity prior returned (with a warning).
+        Pixels. When the 90th percentile of the track displacements from their
+        start stays below this at every frame, the video is declared
+        motionless and the identity prior returned (with a warning). Not the
+        median: a lid or a door is often less than half of the object, and
+        the body it hinges on stays still.
     rigid : RigidOptions
         Pose estimation settings.
     """
@@ -108,12 +110,12 @@ class _Part:
     failed: dict[int, str]  # frames whose pose was interpolated, with the reason
 
 
-def _motion_px(tracks: Tracks) -> float:
-    """Largest, over frames, median displacement (pixels) of visible tracks from their start; 0 if none."""
+def _motion_px(tracks: Tracks, percentile: float = 90.0) -> float:
+    """Largest, over frames, ``percentile`` of the visible tracks' displacements from their start (px); 0 if none."""
     first = tracks.uv[tracks.start, np.arange(tracks.num_tracks)]  # (M, 2)
     disp = np.linalg.norm(tracks.uv - first[None], axis=2)  # (T, M), NaN where not visible
-    medians = [np.median(d[v]) for d, v in zip(disp, tracks.visible) if v.any()]
-    return float(max(medians, default=0.0))
+    moved = [np.percentile(d[v], percentile) for d, v in zip(disp, tracks.visible) if v.any()]
+    return float(max(moved, default=0.0))
 
 
 def _subset(tracks: Tracks, keep: np.ndarray) -> Tracks:
@@ -280,7 +282,7 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
     few = tracks.num_tracks < options.rigid.min_points
     if few or motion < options.motion_threshold:
         reason = (f"only {tracks.num_tracks} trackable points on the object (too little texture, or a tiny mask)"
-                  if few else f"no motion detected (median track displacement {motion:.2f} px < "
+                  if few else f"no motion detected (90th percentile of the track displacements {motion:.2f} px < "
                   f"{options.motion_threshold} px)")
         warnings.warn(f"{reason}: returning the identity prior", stacklevel=2)
         stages.timings["total"] = time.perf_counter() - start
