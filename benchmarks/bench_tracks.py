@@ -39,19 +39,8 @@ OUT = Path(__file__).resolve().parents[1] / "docs" / "benchmarks" / "tracks.md"
 
 def track_errors(scene, tracks: Tracks) -> np.ndarray:
     """(T, M) distance (pixels) of each visible track to the projection of its true 3D point; NaN elsewhere."""
-    k = scene.camera.K
     m = np.arange(tracks.num_tracks)
-    start = tracks.start
-    uv = tracks.uv[start, m].astype(np.float64)  # seeds sit on whole pixels
-    col, row = np.rint(uv).astype(np.int64).T
-    depth = scene.depths[start, row, col].astype(np.float64)
-    part = np.maximum(scene.part_masks[start, row, col], 0)
-    rays = np.column_stack([(uv[:, 0] - k[0, 2]) / k[0, 0], (uv[:, 1] - k[1, 2]) / k[1, 1], np.ones(len(m))])
-    seeded = np.linalg.inv(scene.poses[part, start])  # (M, 4, 4) camera at the seed frame → body
-    body = np.einsum("mij,mj->mi", seeded[:, :3, :3], rays * depth[:, None]) + seeded[:, :3, 3]
-    poses = scene.poses[part]  # (M, T, 4, 4)
-    cam = np.einsum("mtij,mj->tmi", poses[..., :3, :3], body) + poses[..., :3, 3].transpose(1, 0, 2)
-    truth = cam[..., :2] / cam[..., 2:] * [k[0, 0], k[1, 1]] + k[:2, 2]
+    truth, _ = scene.track_truth(tracks.start, tracks.uv[tracks.start, m])  # seeds sit on whole pixels
     return np.where(tracks.visible, np.linalg.norm(truth - tracks.uv, axis=2), np.nan)
 
 

@@ -97,6 +97,43 @@ class SyntheticScene:
         """(P,) RMS distance of each part's points to their centroid at frame 0."""
         return np.array([np.sqrt(((p - p.mean(axis=0)) ** 2).sum(axis=1).mean()) for p in self.part_points])
 
+    def track_truth(self, start: np.ndarray, seeds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Where points seeded on whole pixels truly are in every frame (ground truth for 2D tracks).
+
+        A seed's 3D point is the rendered depth at its pixel, on the part
+        drawn there, moved by that part's poses and seen by each frame's camera.
+
+        Parameters
+        ----------
+        start : (M,) int
+            Frame where each point was seeded.
+        seeds : (M, 2) float
+            Its pixel (u, v) there; rounded to the nearest pixel centre.
+
+        Returns
+        -------
+        positions : (T, M, 2) float64
+            True pixel of each point in each frame (also where it is hidden).
+        valid : (M,) bool
+            Seeds that fall on the object (the others' positions are NaN).
+        """
+        start = np.asarray(start, dtype=np.int64)
+        col, row = np.rint(np.asarray(seeds, dtype=np.float64)).astype(np.int64).T
+        depth = self.depths[start, row, col].astype(np.float64)
+        valid = np.isfinite(depth)
+        part = np.maximum(self.part_masks[start, row, col], 0)
+        k = self.camera.K
+        rays = np.column_stack([(col - k[0, 2]) / k[0, 0], (row - k[1, 2]) / k[1, 1], np.ones(len(col))])
+        # Camera of the seed frame → world → the part's frame-0 body → world at t → camera of t.
+        seeded = np.linalg.inv(self.camera_poses[start] @ self.poses[part, start])  # (M, 4, 4)
+        body = np.einsum("mij,mj->mi", seeded[:, :3, :3], rays * np.where(valid, depth, 1.0)[:, None])
+        body += seeded[:, :3, 3]
+        moved = self.camera_poses[None] @ self.poses[part]  # (M, T, 4, 4)
+        cam = np.einsum("mtij,mj->tmi", moved[..., :3, :3], body) + moved[..., :3, 3].transpose(1, 0, 2)
+        positions = cam[..., :2] / cam[..., 2:] * [k[0, 0], k[1, 1]] + k[:2, 2]
+        positions[:, ~valid] = np.nan
+        return positions, valid
+
     def ground_truth_prior(self) -> SpatPrior:
         """The exact SpaT prior of this scene, to compare extracted priors against."""
         return SpatPrior.from_poses(
