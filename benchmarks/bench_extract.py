@@ -186,8 +186,8 @@ def hinge_parts(seeds: int, frames: int, size: tuple[int, int]) -> list[str]:
         " foreshorten (`tracks.md`), and even where they are within 0.15 px (frames 1-8) the error grows to 2.5°"
         " by frame 10: a near-planar part under near-affine viewing leaves its tilt and its rotation about an"
         " in-plane axis weakly separable, and the inflated shape prior's tilt is wrong for a box's top face."
-        " On exact tracks (last table) the same extraction gets the lid within a degree or two: the rest is the"
-        " tracker's drift on the lid."]
+        " On exact tracks (last table) the same extraction gets the lid to a degree or two: most of the error is"
+        " the tracker's drift on the lid."]
 
 
 def main() -> None:
