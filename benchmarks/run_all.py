@@ -148,30 +148,58 @@ def _save(fig, title: str, path: Path) -> None:
     fig.savefig(path)
 
 
+#: Issue 3's targets without and with 1 px of track noise: rotation (deg), centroid (% radius).
+POSE_TARGETS = {"rotation": (0.5, 1.0), "centroid": (1.0, 2.0)}
+
+
+def pose_accuracy_panels(text: str) -> list[tuple[str, dict[str, dict[str, float]]]]:
+    """Panels of the pose accuracy plot from ``extract.md``'s text: (y label, {noise: {motion: value}}) for the
+    rotation error, the rotation error on exact tracks (when the page has that table) and the centroid error."""
+    tables = markdown_tables(text)
+    wanted = [("median rotation (deg)", "rotation error (deg)"),
+              ("rotation, exact tracks (deg)", "rotation error, exact tracks (deg)"),
+              ("median centroid (% radius)", "centroid error (% radius)")]
+    panels = []
+    for column, label in wanted:
+        table = next((t for t in tables if column in t[0]), None)
+        if table is None:
+            continue
+        col = {name: i for i, name in enumerate(table[0])}
+        series: dict[str, dict[str, float]] = {}
+        for row in table[1:]:
+            series.setdefault(row[col["noise (px)"]], {})[row[col["motion"]]] = float(row[col[column]])
+        panels.append((label, series))
+    return panels
+
+
 def plot_pose_accuracy(page: Path, path: Path) -> bool:
-    """Bars of the median rotation and centroid errors per motion and noise level, from the summary
-    table of ``extract.md``; False (nothing written) when the page has no such table."""
+    """Bars of the median rotation (on the tracker's and on exact tracks) and centroid errors per motion and
+    noise level, from the tables of ``extract.md``; False (nothing written) when the page has no summary table."""
     from matplotlib.figure import Figure
 
-    table = next((t for t in markdown_tables(page.read_text()) if "median rotation (deg)" in t[0]), None)
-    if table is None:
+    panels = pose_accuracy_panels(page.read_text())
+    if not panels or panels[0][0] != "rotation error (deg)":
         return False
-    col = {name: i for i, name in enumerate(table[0])}
-    motions = list(dict.fromkeys(row[col["motion"]] for row in table[1:]))
-    noises = list(dict.fromkeys(row[col["noise (px)"]] for row in table[1:]))
-    fig = Figure(figsize=(9, 3.6), dpi=100)
-    for ax, (column, label) in zip(fig.subplots(1, 2), (("median rotation (deg)", "rotation error (deg)"),
-                                                        ("median centroid (% radius)", "centroid error (% radius)"))):
-        width = 0.8 / len(noises)
-        for j, noise in enumerate(noises):
-            values = {row[col["motion"]]: float(row[col[column]]) for row in table[1:]
-                      if row[col["noise (px)"]] == noise}
-            ax.bar([i + (j - (len(noises) - 1) / 2) * width for i in range(len(motions))],
-                   [values.get(m, float("nan")) for m in motions], width, label=f"track noise {noise} px")
+    fig = Figure(figsize=(4.5 * len(panels), 3.6), dpi=100)
+    axes = fig.subplots(1, len(panels))
+    for ax, (label, series) in zip(axes, panels):
+        motions = list(dict.fromkeys(m for values in series.values() for m in values))
+        width = 0.8 / len(series)
+        for j, (noise, values) in enumerate(series.items()):
+            ax.bar([i + (j - (len(series) - 1) / 2) * width for i in range(len(motions))],
+                   [values[m] for m in motions], width, label=f"track noise {noise} px")
+        for target, noise in zip(POSE_TARGETS["centroid" if "centroid" in label else "rotation"], series):
+            ax.axhline(target, color="0.3", linestyle="--", linewidth=0.8)
+            ax.annotate(f"target, {noise} px", (len(motions) - 0.5, target), fontsize=7, color="0.3",
+                        ha="right", va="bottom")
         ax.set_xticks(range(len(motions)), motions, fontsize=8)
         ax.set_ylabel(label)
         ax.grid(True, axis="y", alpha=0.3)
-        ax.legend(fontsize=8)
+        ax.margins(y=0.25)  # room for the legend above the bars
+        ax.legend(fontsize=8, loc="upper left")
+    if len(panels) == 3:  # the two rotation panels on one scale, so the tracker's share reads off directly
+        axes[1].sharey(axes[0])
+        axes[0].autoscale()
     _save(fig, "Pose accuracy on the synthetic suite (median over seeds)", path)
     return True
 

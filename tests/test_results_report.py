@@ -22,6 +22,13 @@ EXTRACT_PAGE = """# Source motion extraction on synthetic scenes
 | translation | 1 | 2.27 | 5.33 | 1.1 |
 | hinge | 0 | 0.19 | 4.67 | 2.0 |
 | hinge | 1 | 0.18 | 5.03 | 2.1 |
+
+On exact tracks:
+
+| motion | noise (px) | rotation, LK tracks (deg) | rotation, exact tracks (deg) | centroid, exact tracks (% radius) |
+|---|---|---|---|---|
+| translation | 0 | 0.47 | 0.00 | 6.09 |
+| translation | 1 | 2.27 | 1.14 | 6.44 |
 """
 
 TABLE1_PAGE = """# Table 1
@@ -90,6 +97,17 @@ def test_assemble_draws_plots_from_the_tables(report, name):
     text, _, tmp_path = report
     assert (tmp_path / "docs" / "images" / "results" / name).stat().st_size > 1000
     assert f"](images/results/{name})" in text
+
+
+def test_pose_accuracy_panels_read_the_summary_and_the_exact_track_tables():
+    panels = run_all.pose_accuracy_panels(EXTRACT_PAGE)
+    assert [label for label, _ in panels] == ["rotation error (deg)", "rotation error, exact tracks (deg)",
+                                             "centroid error (% radius)"]
+    assert panels[0][1] == {"0": {"translation": 0.47, "hinge": 0.19}, "1": {"translation": 2.27, "hinge": 0.18}}
+    assert panels[1][1] == {"0": {"translation": 0.0}, "1": {"translation": 1.14}}
+    assert panels[2][1]["1"] == {"translation": 5.33, "hinge": 5.03}  # the summary's, not the exact table's
+    assert [label for label, _ in run_all.pose_accuracy_panels(EXTRACT_PAGE.split("On exact")[0])] == [
+        "rotation error (deg)", "centroid error (% radius)"]
 
 
 def test_markdown_tables_drop_the_rule_and_split_cells():
