@@ -8,7 +8,7 @@ import numpy as np
 
 from ..camera import MAX_IMAGE_SIDE, Camera
 from ..errors import InputError
-from ..geometry import axis_angle_to_matrix, make_transform
+from ..geometry import axis_angle_to_matrix, invert_transform, make_transform
 from ..prior import SpatPrior
 from ._motions import plan_camera, plan_motion
 from ._objects import make_box, make_cylinder, make_hinged_box
@@ -125,12 +125,12 @@ class SyntheticScene:
         k = self.camera.K
         rays = np.column_stack([(col - k[0, 2]) / k[0, 0], (row - k[1, 2]) / k[1, 1], np.ones(len(col))])
         # Camera of the seed frame → world → the part's frame-0 body → world at t → camera of t.
-        seeded = np.linalg.inv(self.camera_poses[start] @ self.poses[part, start])  # (M, 4, 4)
+        seeded = invert_transform(self.camera_poses[start] @ self.poses[part, start])  # (M, 4, 4)
         body = np.einsum("mij,mj->mi", seeded[:, :3, :3], rays * np.where(valid, depth, 1.0)[:, None])
         body += seeded[:, :3, 3]
         moved = self.camera_poses[None] @ self.poses[part]  # (M, T, 4, 4)
         cam = np.einsum("mtij,mj->tmi", moved[..., :3, :3], body) + moved[..., :3, 3].transpose(1, 0, 2)
-        positions = cam[..., :2] / cam[..., 2:] * [k[0, 0], k[1, 1]] + k[:2, 2]
+        positions = self.camera.project(cam.reshape(-1, 3))[0].reshape(cam.shape[:2] + (2,))  # frame 0 is the world
         positions[:, ~valid] = np.nan
         return positions, valid
 
