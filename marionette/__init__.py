@@ -12,6 +12,7 @@ The library API, for scripts and notebooks::
 
 from . import synthetic
 from .camera import Camera
+from .demo import write_demo_inputs
 from .errors import InputError
 from .gaussians import Gaussians
 from .io import read_ply, read_prior, read_video, write_ply, write_prior, write_video
@@ -32,4 +33,4 @@ __version__ = "0.1.0"
 __all__ = ["extract", "lift_target", "transfer", "render_video", "render_frames", "fit_view", "write_ply_frames",
            "render", "read_prior", "write_prior", "read_ply", "write_ply", "read_video", "write_video",
            "SpatPrior", "Gaussians", "Camera", "Trajectory", "LiftedTarget", "ExtractOptions", "LiftOptions",
-           "Reporter", "InputError", "trajectory_quality", "synthetic"]
+           "Reporter", "InputError", "trajectory_quality", "synthetic", "write_demo_inputs"]

@@ -396,10 +396,16 @@ def _write_manifest(path: Path, manifest: dict) -> None:
 
 @contextlib.contextmanager
 def _recorded_warnings() -> Iterator[list[str]]:
-    """Collect the warnings raised inside as distinct one-line texts, for the client to show."""
+    """Collect the warnings raised inside as distinct one-line texts, for the client to show.
+
+    ResourceWarnings stay hidden, as Python hides them by default: they are
+    about the worker's housekeeping (imageio-ffmpeg leaves a finished
+    decoder's pipes to the garbage collector), not about the job.
+    """
     texts: list[str] = []
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
+        warnings.simplefilter("ignore", ResourceWarning)
         yield texts
     texts.extend(dict.fromkeys(str(w.message).splitlines()[0] for w in caught))
 
@@ -452,11 +458,16 @@ def _one_line(exc: BaseException) -> str:
 # --- running -------------------------------------------------------------------------------------------------------
 
 def local_cluster(workers: int = 2):
-    """A Dask LocalCluster of ``workers`` single-threaded processes, every socket on 127.0.0.1."""
+    """A Dask LocalCluster of ``workers`` single-threaded processes, every socket on 127.0.0.1.
+
+    Its processes log only critical errors: a failed task comes back to the
+    client, which reports it as one line, so the workers' own log of it (a
+    traceback) would only repeat it.
+    """
     from distributed import LocalCluster
 
     return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                        dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR)
+                        dashboard_address="127.0.0.1:0", silence_logs=logging.CRITICAL)
 
 
 def _client(scheduler: str | None, workers: int, stack: contextlib.ExitStack):
@@ -558,11 +569,12 @@ def run_batch(jobs_file: str | Path, scheduler: str | None = None, workers: int 
 
 def _cells(row: JobResult, folder: Path) -> list[str]:
     seconds = ["" if s is None else f"{s:.2f}" for s in (row.extract_s, row.transfer_s)]
-    return [row.job, row.source, row.target, str(row.output.relative_to(folder)), row.status, *seconds, row.error]
+    output = "" if row.status == "failed" else str(row.output.relative_to(folder))
+    return [row.job, row.source, row.target, output, row.status, *seconds, row.error]
 
 
 def _write_tables(folder: Path, rows: list[JobResult]) -> None:
-    """``results.csv`` and ``results.md``: one row per job, output paths relative to ``folder``."""
+    """``results.csv`` and ``results.md``: one row per job, output paths relative to ``folder`` (none if failed)."""
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")
     writer.writerow(RESULT_COLUMNS)

@@ -162,7 +162,7 @@ class Camera:
         return replace(self, world_to_camera=np.asarray(world_to_camera, dtype=np.float64))
 
     def to_dict(self) -> dict:
-        """The ``CAMERA.json`` form (DESIGN.md contract)."""
+        """The ``CAMERA.json`` form (docs/DESIGN.md contract)."""
         return {"width": self.width, "height": self.height, "fx": self.fx, "fy": self.fy,
                 "cx": self.cx, "cy": self.cy, "world_to_camera": self.world_to_camera.tolist()}
 

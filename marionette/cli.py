@@ -1,7 +1,9 @@
-"""Command line: a thin layer over :mod:`marionette.pipeline` (contract in DESIGN.md).
+"""Command line: a thin layer over :mod:`marionette.pipeline` (contract in docs/DESIGN.md).
 
 Every command prints one ``error: …`` line on stderr and exits with code 2 on
-bad input or usage, and writes its outputs atomically.
+bad input or usage, and writes its outputs as one unit: all under temporary
+names, put in place together when the command succeeds
+(:class:`~marionette.io.atomic.StagedOutputs`).
 """
 
 from __future__ import annotations
@@ -24,8 +26,8 @@ from . import pipeline
 from .camera import MAX_IMAGE_SIDE, Camera
 from .errors import InputError
 from .geometry import rotation_angle_deg
-from .io import read_masks, read_ply, read_prior, read_video, write_image, write_prior, write_splat_animation
-from .io.atomic import check_output_dir, check_output_folder, check_output_path, write_text
+from .io import read_ply, read_prior, write_image, write_prior, write_splat_animation
+from .io.atomic import StagedOutputs, check_output_dir, check_output_folder, check_output_path, staged_outputs
 from .io.video import DEFAULT_MAX_PIXELS
 from .options import parse_background, parse_part_seeds, parse_parts, parse_size
 from .plot import plot_prior
@@ -93,41 +95,64 @@ Config = Annotated[Optional[Path], typer.Option(
     is_eager=True, callback=_load_config)]
 Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bars or messages.")]
 Verbose = Annotated[bool, typer.Option("--verbose", "-v", help="Also print each stage's time and the figures.")]
-Json = Annotated[bool, typer.Option("--json", help="Print a JSON summary (outputs, timings, figures) on stdout.")]
+Json = Annotated[bool, typer.Option(
+    "--json", help="Print a JSON summary (outputs, timings, figures, warnings) on stdout.")]
 
 
 @dataclass
 class _Session:
-    """One command's reporter and the summary it prints at the end."""
+    """One command's reporter, its staged outputs and the summary it prints at the end."""
 
     command: str
     reporter: Reporter
+    staged: StagedOutputs
     outputs: dict[str, str] = field(default_factory=dict)
     figures: dict[str, Any] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+    start: float = field(default_factory=time.perf_counter)
+
+    def summary(self) -> dict[str, Any]:
+        """Outputs, figures, warnings and stage timings so far (the ``--json`` summary)."""
+        timings = {k: round(v, 3) for k, v in self.reporter.timings.items()}
+        timings["total"] = round(time.perf_counter() - self.start, 3)
+        return {"command": self.command, "outputs": self.outputs, "figures": self.figures,
+                "warnings": self.warnings, "timings": timings}
+
+    def stage(self, path: Path) -> Path:
+        """The temporary name to write output ``path`` to; a folder for a video without suffix (frame folder)."""
+        return self.staged.folder(path) if not path.suffix else self.staged.file(path)
 
     def output(self, kind: str, path: Path) -> None:
+        """List output ``path`` in the summary."""
         self.outputs[kind] = str(path)
+
+    def warn(self, message, category=UserWarning, filename="", lineno=0, file=None, line=None) -> None:
+        """Show a warning as one ``warning: …`` line and keep it for the summary (``warnings.showwarning``)."""
+        _show_warning(message, category, filename, lineno)
+        self.warnings.append(str(message).splitlines()[0])
 
 
 @contextlib.contextmanager
 def _session(command: str, quiet: bool, verbose: bool, as_json: bool) -> Iterator[_Session]:
-    """Run a command body; then print its summary (JSON on stdout, or lines on stderr)."""
+    """Run a command body; then put its outputs in place and print its summary (JSON on stdout, or lines on stderr).
+
+    If the body fails or is interrupted, none of its outputs is put in place.
+    """
     if quiet and verbose:
         raise InputError("--quiet and --verbose exclude each other")
-    session = _Session(command, Reporter(quiet=quiet, verbose=verbose))
-    start = time.perf_counter()
-    yield session
-    timings = {k: round(v, 3) for k, v in session.reporter.timings.items()}
-    timings["total"] = round(time.perf_counter() - start, 3)
+    with staged_outputs() as staged, warnings.catch_warnings():
+        session = _Session(command, Reporter(quiet=quiet, verbose=verbose), staged)
+        warnings.showwarning = session.warn
+        yield session
+    summary = session.summary()
     if as_json:
-        summary = {"command": command, "outputs": session.outputs, "figures": session.figures, "timings": timings}
         print(json.dumps(summary, indent=2, default=float))
         return
     for kind, path in session.outputs.items():
         session.reporter.message(f"wrote {kind}: {path}")
     for name, value in session.figures.items():
         session.reporter.detail(f"  {name}: {value}")
-    session.reporter.detail(f"  total: {timings['total']:.2f} s")
+    session.reporter.detail(f"  total: {summary['timings']['total']:.2f} s")
 
 
 def _prior_line(prior) -> str:
@@ -166,8 +191,8 @@ def _parsed(option: str, parse: Callable[[Any], Any], value: Any) -> Any:
         raise InputError(f"{option} {e}, got {value!r}") from None
 
 
-def _optional_output(path: Optional[Path], suffix: str, option: str) -> None:
-    """Check an optional output file: the right suffix and a writable place."""
+def _output_file(path: Optional[Path], suffix: str, option: str) -> None:
+    """Check an output file (None: not asked for): the right suffix and a writable place."""
     if path is None:
         return
     if path.suffix.lower() != suffix:
@@ -179,6 +204,11 @@ def _video_output(path: Path) -> Path:
     if path.suffix.lower() not in VIDEO_SUFFIXES:
         raise InputError(f"unsupported video output {path.name!r}: use .mp4, .gif or a folder name")
     return check_output_path(path)
+
+
+def _check_loop(loop: str) -> None:
+    if loop not in LOOPS:
+        raise InputError(f"--loop must be one of {', '.join(LOOPS)}, got {loop!r}")
 
 
 def _transfer_checks(frames: Optional[int], speed: float, fps: Optional[float]) -> None:
@@ -198,9 +228,10 @@ def demo(output: Annotated[Path, typer.Option("--output", "-o", help="Output fol
 
     check_output_dir(output)
     with _session("demo", quiet, verbose, json_summary) as session:
-        for kind, path in run_demo(output, reporter=session.reporter).items():
-            session.output(kind, path)
-        session.figures["source"] = _prior_figures(read_prior(session.outputs["prior"]))
+        written = run_demo(session.staged.folder(output), reporter=session.reporter)
+        for kind, path in written.items():
+            session.output(kind, output / path.name)
+        session.figures["source"] = _prior_figures(read_prior(written["prior"]))
 
 
 Masks = Annotated[Optional[Path], typer.Option(help="Folder of per-frame mask images (default: found automatically).")]
@@ -233,7 +264,7 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
         raise InputError(f"--max-pixels must be at least {16 * 16 * 2}, got {max_pixels}")
     if not (np.isfinite(smooth) and 0 <= smooth <= 100):
         raise InputError(f"--smooth must be within 0..100, got {smooth}")
-    _optional_output(plot, ".png", "--plot")
+    _output_file(plot, ".png", "--plot")
     options = ExtractOptions(parts=parts_value, smoothing=smooth)
     prior = pipeline.extract(source, masks=masks, depth=depth, focal=focal, max_side=max_side,
                              max_pixels=max_pixels, start=start,
@@ -241,7 +272,7 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
     session.figures["source"] = _prior_figures(prior)
     session.reporter.message(_prior_line(prior))
     if plot is not None:
-        plot_prior(prior, plot, title=Path(source).name)
+        plot_prior(prior, session.stage(plot), title=Path(source).name)
         session.output("plot", plot)
     return prior
 
@@ -253,11 +284,11 @@ def extract(source: Annotated[Path, typer.Argument(help="Video file or folder of
             max_pixels: MaxPixels = DEFAULT_MAX_PIXELS, smooth: Smooth = 1.0, plot: Plot = None, quiet: Quiet = False,
             verbose: Verbose = False, json_summary: Json = False, config: Config = None) -> None:
     """Extract the SpaT prior (per-part rigid motion) from a source video."""
-    check_output_path(output)
+    _output_file(output, ".npz", "--output")
     with _session("extract", quiet, verbose, json_summary) as session:
         prior = _extract(source, masks, depth, focal, parts, start, end, stride, max_side, max_pixels, smooth, plot,
                          session)
-        write_prior(output, prior)
+        write_prior(session.stage(output), prior)
         session.output("prior", output)
 
 
@@ -328,8 +359,7 @@ def _playback(output: Path, target: Path, frames, speed, loop, reverse, rotation
               preview, splats) -> _Playback:
     """Check every playback option (before any work starts) and the output paths."""
     _transfer_checks(frames, speed, fps)
-    if loop not in LOOPS:
-        raise InputError(f"--loop must be one of {', '.join(LOOPS)}, got {loop!r}")
+    _check_loop(loop)
     for name, value in (("--rotation-scale", rotation_scale), ("--translation-scale", translation_scale)):
         if not (np.isfinite(value) and abs(value) <= 100):
             raise InputError(f"{name} must be a number within -100..100, got {value}")
@@ -341,8 +371,8 @@ def _playback(output: Path, target: Path, frames, speed, loop, reverse, rotation
     if camera_path is not None:
         load_camera_path(camera_path, None)  # the frame count is checked once it is known
     _video_output(output)
-    _optional_output(preview, ".gif", "--preview")
-    _optional_output(splats, ".npz", "--splats")
+    _output_file(preview, ".gif", "--preview")
+    _output_file(splats, ".npz", "--splats")
     if ply_dir is not None:
         check_output_folder(ply_dir, pipeline.PLY_FRAME_NAME)
     if anchor not in ("centroid", "world"):
@@ -357,7 +387,7 @@ def _playback(output: Path, target: Path, frames, speed, loop, reverse, rotation
 
 
 def _transfer_and_render(prior, target: Path, output: Path, play: _Playback, session: _Session):
-    """Lift, transfer, render and write the outputs the options ask for; the trajectory."""
+    """Lift, transfer, render and stage the outputs the options ask for; the trajectory and the staged video."""
     if play.part_seeds:
         pipeline.check_part_seeds(prior, play.part_seeds)
     path_cameras = (None if play.camera_path is None
@@ -373,21 +403,23 @@ def _transfer_and_render(prior, target: Path, output: Path, play: _Playback, ses
                                        part_seeds=play.part_seeds, refine=RefineOptions() if play.refine else None)
         progress(1, 1)
     cameras = path_cameras or pipeline.output_cameras(lifted, trajectory, play.camera, play.camera_amount)
-    pipeline.render_video(output, lifted, trajectory, cameras, fps=play.fps or prior.fps,
+    video = session.stage(output)
+    pipeline.render_video(video, lifted, trajectory, cameras, fps=play.fps or prior.fps,
                           background=play.background, reporter=session.reporter)
     session.output("video", output)
     session.figures["target"] = {"gaussians": len(lifted.gaussians), "frames": trajectory.num_frames,
                                  "size": [cameras[0].width, cameras[0].height], "fps": play.fps or prior.fps}
     if play.preview is not None:
-        pipeline.write_preview(play.preview, output, fps=play.fps or prior.fps)
+        pipeline.write_preview(session.stage(play.preview), video, fps=play.fps or prior.fps)
         session.output("preview", play.preview)
     if play.ply_dir is not None:
-        pipeline.write_ply_frames(play.ply_dir, lifted.gaussians, trajectory)
+        pipeline.write_ply_frames(session.staged.folder(play.ply_dir, pipeline.PLY_FRAME_NAME), lifted.gaussians,
+                                  trajectory)
         session.output("ply_dir", play.ply_dir)
     if play.splats is not None:
-        write_splat_animation(play.splats, lifted.gaussians, trajectory, play.fps or prior.fps)
+        write_splat_animation(session.stage(play.splats), lifted.gaussians, trajectory, play.fps or prior.fps)
         session.output("splats", play.splats)
-    return trajectory
+    return trajectory, video
 
 
 @app.command()
@@ -431,24 +463,24 @@ def run(source: Annotated[Path, typer.Argument(help="Video file or folder of fra
                      preview, splats)
     if side_by_side is not None:
         _video_output(side_by_side)
-    _optional_output(report, ".json", "--report")
+    _output_file(report, ".json", "--report")
     with _session("run", quiet, verbose, json_summary) as session:
         prior = _extract(source, masks, depth, focal, parts, start, end, stride, max_side, max_pixels, smooth, plot,
                          session)
-        trajectory = _transfer_and_render(prior, target, output, play, session)
-        times = source_times(trajectory.num_frames, prior.num_frames - 1, speed=speed, loop=loop, reverse=reverse)
+        trajectory, video = _transfer_and_render(prior, target, output, play, session)
         if side_by_side is not None:
-            pipeline.write_side_by_side(side_by_side, source, output, times, fps=play.fps or prior.fps,
+            times = source_times(trajectory.num_frames, prior.num_frames - 1, speed=speed, loop=loop, reverse=reverse)
+            pipeline.write_side_by_side(session.stage(side_by_side), source, video, times, fps=play.fps or prior.fps,
                                         max_side=max_side, start=start, end=end, stride=stride)
             session.output("side_by_side", side_by_side)
         if report is not None:
             from .eval import run_report
 
             with session.reporter.stage("report", 1) as progress:
-                figures = run_report(source, output, trajectory, times, masks=masks, max_side=max_side,
-                                     start=start, end=end, stride=stride)
+                figures = run_report(source, video, trajectory, speed=speed, loop=loop, reverse=reverse, masks=masks,
+                                     max_side=max_side, start=start, end=end, stride=stride)
                 progress(1, 1)
-            write_text(report, json.dumps(figures, indent=2) + "\n")
+            session.stage(report).write_text(json.dumps(figures, indent=2) + "\n", encoding="utf-8")
             session.figures["report"] = figures
             session.output("report", report)
 
@@ -460,7 +492,7 @@ def eval_self_cmd(source: Annotated[Path, typer.Argument(help="Video file or fol
                   quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False,
                   config: Config = None) -> None:
     """Self-transfer (the paper's Table 1): source frame 0 as the target, scored against the masked source."""
-    from .eval import EVAL_EXTRACT, eval_self
+    from .eval import EVAL_EXTRACT, EVAL_SELF_OUTPUTS, eval_self
 
     _check_max_side(max_side)
     options = replace(EVAL_EXTRACT, parts=_parsed("--parts", parse_parts, parts))
@@ -468,9 +500,10 @@ def eval_self_cmd(source: Annotated[Path, typer.Argument(help="Video file or fol
         raise InputError(f"mask folder {masks} does not exist")
     check_output_dir(output)
     with _session("eval-self", quiet, verbose, json_summary) as session:
-        metrics = eval_self(source, masks, output, max_side=max_side, options=options, reporter=session.reporter)
-        for name in ("video.mp4", "metrics.json", "frames.csv", "side_by_side.mp4", "metrics.png"):
-            session.output(name.split(".")[0], output / name)
+        metrics = eval_self(source, masks, session.staged.folder(output), max_side=max_side, options=options,
+                            reporter=session.reporter)
+        for kind, name in EVAL_SELF_OUTPUTS.items():
+            session.output(kind, output / name)
         session.figures.update({k: metrics[k] for k in ("psnr", "ssim", "lpips", "motion_fidelity")})
         if not json_summary:
             fidelity = "n/a" if metrics["motion_fidelity"] is None else f"{metrics['motion_fidelity']:.3f}"
@@ -482,19 +515,29 @@ def eval_self_cmd(source: Annotated[Path, typer.Argument(help="Video file or fol
 @app.command("eval")
 def eval_cmd(source: Annotated[Path, typer.Argument(help="Source video file or folder of frames.")],
              result: Annotated[Path, typer.Argument(help="Transferred video, e.g. from `marionette run`.")],
-             masks: Masks = None, max_side: MaxSide = pipeline.DEFAULT_MAX_SIDE, quiet: Quiet = False,
-             json_summary: Json = False, config: Config = None) -> None:
-    """Motion fidelity of RESULT to SOURCE: 1 the same motion, 0 unrelated, -1 opposite (frame by frame)."""
-    from .eval import motion_fidelity
+             masks: Masks = None, max_side: MaxSide = pipeline.DEFAULT_MAX_SIDE,
+             speed: Annotated[Optional[float], typer.Option(
+                 help="The --speed the result was made with (default 1).")] = None,
+             loop: Annotated[Optional[str], typer.Option(
+                 help="The --loop the result was made with: hold (default), repeat or pingpong.")] = None,
+             reverse: Annotated[bool, typer.Option("--reverse", help="The result was made with --reverse.")] = False,
+             quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False,
+             config: Config = None) -> None:
+    """Motion fidelity of RESULT to SOURCE: 1 the same motion, 0 unrelated, -1 opposite (at the times it shows)."""
+    from .eval import result_fidelity
 
     _check_max_side(max_side)
-    src, res = read_video(source, max_side=max_side), read_video(result, max_side=max_side)
-    t, h, w = src.frames.shape[:3]
-    src_masks = None if masks is None else read_masks(masks, count=t, size=(w, h), indices=src.indices)
-    with Reporter(quiet=quiet or json_summary).stage("motion fidelity", 1) as progress:
-        fidelity = motion_fidelity(src.frames, src_masks, res.frames, None)
-        progress(1, 1)
-    print(json.dumps({"motion_fidelity": fidelity}) if json_summary else f"motion fidelity {fidelity:.4f}")
+    _transfer_checks(None, 1.0 if speed is None else speed, None)
+    if loop is not None:
+        _check_loop(loop)
+    with _session("eval", quiet, verbose, json_summary) as session:
+        with session.reporter.stage("motion fidelity", 1) as progress:
+            fidelity = result_fidelity(source, result, speed=speed, loop=loop, reverse=reverse, masks=masks,
+                                       max_side=max_side)
+            progress(1, 1)
+        session.figures["motion_fidelity"] = fidelity
+        if not json_summary:
+            print(f"motion fidelity {fidelity:.4f}")
 
 
 @app.command()
@@ -523,19 +566,29 @@ def view(result: Annotated[Path, typer.Argument(
              help="Address to listen on; 0.0.0.0 lets other machines connect.")] = "127.0.0.1",
          port: Annotated[int, typer.Option(help="Port (the next free one if taken; 0: any free port).")] = 8080,
          fps: Annotated[Optional[float], typer.Option(help="Playback rate (default: the result's own).")] = None,
-         config: Config = None) -> None:
-    """Play animated Gaussians in the browser: time slider, play/pause, free camera."""
+         quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False, config: Config = None) -> None:
+    """Play animated Gaussians in the browser: time slider, play/pause, free camera (until Ctrl-C)."""
     from .viewer import run as run_viewer  # viser loads only for this command
 
-    run_viewer(result, host, port, fps=fps)
+    with _session("view", quiet, verbose, json_summary) as session:
+        def announce(viewer) -> None:
+            """Once serving: the page's address (the JSON summary, with --json)."""
+            session.figures.update(url=viewer.url, frames=viewer.num_frames)
+            if json_summary:
+                print(json.dumps(session.summary(), indent=2, default=float), flush=True)
+            else:
+                session.reporter.message(f"viewer at {viewer.url} (Ctrl-C to stop)")
+                session.reporter.detail(f"  frames: {viewer.num_frames}")
+
+        run_viewer(result, host, port, fps=fps, announce=announce, verbose=verbose)
 
 
 @app.command("render")
 def render_cmd(scene: Annotated[Path, typer.Argument(help="3DGS .ply file.")],
-               camera: Annotated[Path, typer.Option(help="CAMERA.json (DESIGN.md contract).")],
+               camera: Annotated[Path, typer.Option(help="CAMERA.json (docs/DESIGN.md contract).")],
                output: Output, background: Background = "1,1,1", quiet: Quiet = False, verbose: Verbose = False,
                json_summary: Json = False, config: Config = None) -> None:
-    """Render a 3DGS .ply from a camera to a PNG."""
+    """Render a 3DGS .ply from a camera to a PNG (a warning when nothing of it is in view)."""
     bg = _parsed("--background", parse_background, background)
     if output.suffix.lower() not in (".png", ".jpg", ".jpeg"):
         raise InputError(f"unsupported image output {output.name!r}: use .png or .jpg")
@@ -546,7 +599,11 @@ def render_cmd(scene: Annotated[Path, typer.Argument(help="3DGS .ply file.")],
         with session.reporter.stage("rendering", 1) as progress:
             out = render(gaussians, cam, bg)
             progress(1, 1)
-        write_image(output, (np.clip(out.image, 0, 1) * 255 + 0.5).astype(np.uint8))
+        if out.alpha.max() < 0.5 / 255:  # not one pixel differs from the background
+            behind = int((cam.project(gaussians.means)[1] <= 0).sum())
+            session.warn(f"nothing of the scene is in view: none of its {len(gaussians)} Gaussians reaches the "
+                         f"image ({behind} of them behind the camera); the image holds only the background")
+        write_image(session.stage(output), (np.clip(out.image, 0, 1) * 255 + 0.5).astype(np.uint8))
         session.output("image", output)
         session.figures["gaussians"] = len(gaussians)
 
@@ -577,7 +634,9 @@ def main(argv: list[str] | None = None) -> int:
     except typer.Abort:
         code = 130
     except typer.TyperException as e:  # typer >= 0.29 vendors click; usage errors land here
-        print(f"error: {e.format_message().splitlines()[0]}", file=sys.stderr)
+        message = e.format_message().splitlines()
+        if message:  # none for a bare `marionette`: the help is printed instead, and click's exit code 2 kept
+            print(f"error: {message[0]}", file=sys.stderr)
         return 2
     except InputError as e:
         print(f"error: {str(e).splitlines()[0]}", file=sys.stderr)

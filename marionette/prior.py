@@ -1,7 +1,7 @@
 """The SpaT prior: per-part rigid steps extracted from a source video.
 
 Motion Marionette (Sec. 4.1) stores, for each time step t, the rigid step
-``μ_{t+1} = R_t μ_t + δ_t`` (its Eq. 5). We keep the contract of DESIGN.md:
+``μ_{t+1} = R_t μ_t + δ_t`` (its Eq. 5). We keep the contract of docs/DESIGN.md:
 cumulative poses from frame 0, the steps derived from them, and each part's
 centroid and size so a transfer can move parts about their own centres.
 """

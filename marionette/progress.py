@@ -31,12 +31,13 @@ class Reporter:
         self.timings: dict[str, float] = {}
 
     def message(self, text: str) -> None:
-        self.console.print(text, highlight=False)
+        """A line on stderr (never wrapped: one message, one line, in a log too)."""
+        self.console.print(text, highlight=False, soft_wrap=True)
 
     def detail(self, text: str) -> None:
         """A line shown only with ``verbose``."""
         if self.verbose:
-            self.console.print(text, highlight=False, style="dim")
+            self.console.print(text, highlight=False, style="dim", soft_wrap=True)
 
     @contextlib.contextmanager
     def stage(self, description: str, total: int | None = None) -> Iterator[ProgressCallback]:

@@ -11,7 +11,10 @@ field; viser provides the free camera. The scene is shown in our world frame
 
 from __future__ import annotations
 
+import contextlib
+import io
 import socket
+import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -197,7 +200,7 @@ def serve(source: Source, host: str = "127.0.0.1", port: int = 8080, *, fps: flo
         Port 0 picks a free port; a taken port is replaced by the next free one.
     fps : playback rate; default the animation's own (``DEFAULT_FPS`` for .ply frames).
     autoplay : start playing at once.
-    verbose : let viser print connection messages (its banner shows regardless).
+    verbose : let viser print its banner (on stderr) and connection messages.
     """
     if not 0 <= int(port) <= 65535:
         raise InputError(f"port must be in 0..65535 (0: any free port), got {port}")
@@ -214,18 +217,20 @@ def serve(source: Source, host: str = "127.0.0.1", port: int = 8080, *, fps: flo
         fps = DEFAULT_FPS if fps is None else fps
     if not (np.isfinite(fps) and fps > 0):
         raise InputError(f"fps must be a positive number, got {fps}")
-    server = viser.ViserServer(host=host, port=int(port), verbose=verbose)
+    with contextlib.redirect_stdout(sys.stderr if verbose else io.StringIO()):  # stdout may hold a JSON summary
+        server = viser.ViserServer(host=host, port=int(port), verbose=verbose)
     return Viewer(server, frame, num_frames, fps, autoplay)
 
 
 def run(source: Source, host: str = "127.0.0.1", port: int = 8080, *, fps: float | None = None,
-        announce: Callable[[str], None] = print) -> None:
-    """Serve ``source`` until interrupted (Ctrl-C), announcing the page's address."""
-    viewer = serve(source, host, port, fps=fps)
-    announce(f"viewer at {viewer.url} (Ctrl-C to stop)")
+        announce: Callable[[Viewer], None] | None = None, verbose: bool = False) -> None:
+    """Serve ``source`` until interrupted, then stop the server and let the KeyboardInterrupt through.
+
+    ``announce`` is called with the running viewer (default: print its address).
+    """
+    viewer = serve(source, host, port, fps=fps, verbose=verbose)
     try:
+        (announce or (lambda v: print(f"viewer at {v.url} (Ctrl-C to stop)")))(viewer)
         threading.Event().wait()
-    except KeyboardInterrupt:
-        pass  # the normal way out
     finally:
         viewer.stop()

@@ -261,3 +261,33 @@ part_seed = { 0 = [10, 12] }
     assert (second.name, second.options["speed"], second.options["size"]) == ("slow", 0.5, (40, 30))
     assert second.options["part_seed"] == {0: (10.0, 12.0)} and second.options["background"] == (1.0, 0.0, 0.0)
     assert second.output == inputs / "elsewhere" / "slow.gif"
+
+
+def test_a_failed_job_is_one_line_and_lists_no_output(inputs, capfd):
+    """On its own local cluster (whose workers write to this process's stderr): no tracebacks, no ResourceWarnings."""
+    from marionette.cli import main
+
+    jobs = write_jobs(inputs, '''output = "one-fails"
+[[source]]
+path = "spin.mp4"
+masks = "spin_masks"
+max_side = 96
+[[target]]
+path = "disc.png"
+frames = 3
+[[target]]
+path = "broken.png"
+''', "one_fails.toml")
+    assert main(["batch", str(jobs), "--workers", "1"]) == 1
+    err = capfd.readouterr().err
+    (line,) = [line for line in err.splitlines() if "spin__broken" in line or "broken.png" in line]
+    assert line.startswith("failed: spin__broken: cannot read image ") and line.endswith(
+        "broken.png (corrupt or not a PNG file)")
+    assert "Traceback" not in err and "Warning" not in err and "unclosed" not in err, err
+    folder = inputs / "one-fails"
+    with open(folder / "results.csv", newline="") as f:
+        rows = {row["job"]: row for row in csv.DictReader(f)}
+    assert {job: (row["status"], row["output"]) for job, row in rows.items()} == {
+        "spin__disc": ("ran", "spin__disc.mp4"), "spin__broken": ("failed", "")}
+    assert (folder / "spin__disc.mp4").is_file()
+    assert "spin__broken.mp4" not in (folder / "results.md").read_text()

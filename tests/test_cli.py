@@ -3,6 +3,7 @@
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -88,6 +89,7 @@ def test_render_command(tmp_path):
     (["extract", "{frames}", "-o", "{tmp}/p.npz", "--start", "50"], "selected range"),
     (["extract", "{frames}", "-o", "{tmp}/p.npz", "--smooth", "-1"], "--smooth"),
     (["extract", "{frames}", "-o", "{tmp}/p.npz", "--plot", "{tmp}/plot.jpg"], "--plot"),
+    (["extract", "{frames}", "-o", "{out}"], "--output must name a .npz file"),
     (["extract", "{frames}", "-o", "{tmp}/p.npz", "--masks", "{tmp}/nomasks"], "nomasks"),
     (["extract", "{frames}", "-o", "{tmp}/p.npz", "--depth", "{tmp}/nodepth"], "nodepth"),
     (["render", "{tmp}/none.ply", "--camera", "{tmp}/none.json", "-o", "{tmp}/i.png"], "none.json"),
@@ -125,6 +127,35 @@ def test_existing_output_survives_a_failed_run(tmp_path, capsys, prior_file):
     assert main(["transfer", str(prior_file), str(transparent), "-o", str(out)]) == 2
     assert "transparent" in one_error_line(capsys)
     assert out.read_bytes() == b"precious"
+
+
+@pytest.mark.parametrize("command", [[sys.executable, "-m", "marionette"],
+                                     [str(Path(sys.executable).with_name("marionette"))]])
+def test_no_command_prints_the_help_and_exits_2_as_click_does(command):
+    proc = subprocess.run(command, capture_output=True, text=True)
+    assert proc.returncode == 2, proc.stderr
+    assert "Usage: marionette" in proc.stdout and "extract" in proc.stdout
+    assert proc.stderr == ""  # no traceback, and no error line: the help says it all
+
+
+def test_render_warns_when_nothing_of_the_scene_is_in_view(tmp_path, capsys):
+    g = Gaussians.from_rgb(np.array([[0.0, 0.0, -3.0], [0.2, 0.0, -3.0]]), np.array([[1.0, 0.0, 0.0]] * 2),
+                           np.array([0.3, 0.3]), 0.99)  # behind a camera at the origin looking along +z
+    write_ply(tmp_path / "scene.ply", g)
+    (tmp_path / "cam.json").write_text(json.dumps(Camera.from_fov(40, 30).to_dict()))
+    out = tmp_path / "img.png"
+    assert main(["render", str(tmp_path / "scene.ply"), "--camera", str(tmp_path / "cam.json"), "-o", str(out),
+                 "--json", "-q"]) == 0
+    captured = capsys.readouterr()
+    (warning,) = json.loads(captured.out)["warnings"]
+    assert "nothing of the scene is in view" in warning and "2 of them behind the camera" in warning
+    assert captured.err.strip().splitlines() == [f"warning: {warning}"]
+    assert (cv2.imread(str(out)) == 255).all()  # the image is written: the background alone
+    (tmp_path / "front.json").write_text(json.dumps(Camera.from_fov(40, 30).with_pose(
+        make_transform(axis_angle_to_matrix([0, np.pi, 0]), [0, 0, 0])).to_dict()))
+    assert main(["render", str(tmp_path / "scene.ply"), "--camera", str(tmp_path / "front.json"), "-o", str(out),
+                 "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["warnings"] == []  # turned around, it sees them
 
 
 def test_installed_entry_point_prints_no_traceback(tmp_path):

@@ -1,6 +1,7 @@
 """Command-line conveniences: --json summaries, --verbose, --config TOML files, preview and side-by-side outputs."""
 
 import json
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -8,8 +9,8 @@ import pytest
 from test_cli import one_error_line, write_clip
 
 from marionette.cli import main
-from marionette.io import read_video
-from marionette.synthetic import make_scene
+from marionette.io import read_video, write_image
+from marionette.synthetic import make_scene, render_object_image
 
 
 def test_json_summary_lists_outputs_timings_and_figures(tmp_path, prior_file, target_png, capsys):
@@ -125,7 +126,10 @@ def test_eval_self_command_writes_the_table_1_outputs(tmp_path, clip, capsys, mo
     summary = json.loads(capsys.readouterr().out)
     metrics = json.loads((out / "metrics.json").read_text())
     assert summary["figures"]["psnr"] == metrics["psnr"] > 18 and metrics["lpips"] is None
-    assert {"video", "metrics", "frames", "side_by_side"} <= set(summary["outputs"])
+    assert summary["outputs"] == {kind: str(out / name) for kind, name in (
+        ("video", "video.mp4"), ("metrics", "metrics.json"), ("frames", "frames.csv"),
+        ("side_by_side", "side_by_side.mp4"), ("metrics_plot", "metrics.png"))}
+    assert all(Path(path).is_file() for path in summary["outputs"].values())
     assert len(read_video(out / "video.mp4").frames) == 12
     assert main(["eval-self", str(clip / "frames"), "-o", str(out), "--max-side", "4"]) == 2
     assert "--max-side" in one_error_line(capsys)
@@ -138,7 +142,9 @@ def test_eval_command_and_run_report_give_motion_fidelity(tmp_path, clip, target
     figures = json.loads(report.read_text())
     assert figures["motion_fidelity"] > 0.5 and figures["rigidity_error"] < 1e-3
     assert main(["eval", str(clip / "frames"), str(out), "--masks", str(clip / "masks"), "--json"]) == 0
-    assert json.loads(capsys.readouterr().out)["motion_fidelity"] == pytest.approx(figures["motion_fidelity"])
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["figures"]["motion_fidelity"] == pytest.approx(figures["motion_fidelity"])
+    assert summary["warnings"] == [] and "motion fidelity" in summary["timings"]
     backwards = tmp_path / "back.mp4"
     assert main(["run", str(clip / "frames"), str(target_png), "--masks", str(clip / "masks"), "-o",
                  str(backwards), "-q", "--reverse"]) == 0
@@ -159,3 +165,37 @@ def test_target_depth_map_option(tmp_path, prior_file, target_png, capsys):
                  "--target-depth", str(tmp_path / "small.npy")]) == 2
     assert "small.npy" in one_error_line(capsys)
     assert not (tmp_path / "x.mp4").exists()
+
+
+@pytest.fixture(scope="module")
+def retimed(tmp_path_factory):
+    """A demo-like clip (a box turning out of plane) run onto a textured target at speed 1 and 0.5, with reports."""
+    root = tmp_path_factory.mktemp("retimed")
+    write_clip(root, make_scene("outofplane", num_frames=16, size=(160, 120), seed=0))
+    write_image(root / "target.png", render_object_image("hinge", size=(96, 96), seed=1))
+    for speed in ("1", "0.5"):
+        assert main(["run", str(root / "frames"), str(root / "target.png"), "--masks", str(root / "masks"),
+                     "-o", str(root / f"speed{speed}.mp4"), "-q", "--speed", speed,
+                     "--report", str(root / f"speed{speed}.json")]) == 0
+    return root
+
+
+def test_motion_fidelity_does_not_change_with_the_speed(retimed):
+    normal, slow = (json.loads((retimed / f"speed{s}.json").read_text())["motion_fidelity"] for s in ("1", "0.5"))
+    assert normal > 0.8 and slow > 0.8
+    assert slow == pytest.approx(normal, abs=0.05)
+
+
+def test_eval_lines_up_a_retimed_result_or_says_it_cannot(retimed, capsys):
+    args = ["eval", str(retimed / "frames"), str(retimed / "speed0.5.mp4"), "--masks", str(retimed / "masks"), "--json"]
+    assert main(args) == 0  # not told how the result was made
+    (warning,) = json.loads(capsys.readouterr().out)["warnings"]
+    assert "speed0.5.mp4 has 31 frames and frames 16" in warning and "--speed" in warning
+    assert main(args + ["--speed", "0.5", "--verbose"]) == 0
+    captured = capsys.readouterr()
+    summary = json.loads(captured.out)
+    assert summary["warnings"] == [] and "warning" not in captured.err
+    report = json.loads((retimed / "speed0.5.json").read_text())
+    assert summary["figures"]["motion_fidelity"] == pytest.approx(report["motion_fidelity"])
+    assert main(args + ["--loop", "bounce"]) == 2
+    assert "--loop" in one_error_line(capsys)

@@ -136,6 +136,16 @@ def test_motion_fidelity_ignores_object_size_and_finds_white_background_objects(
     assert motion_fidelity(frames, masks, big, None) > 0.95
 
 
+def test_motion_fidelity_compares_a_retimed_result_at_the_source_times_it_shows(moving):
+    frames, masks = moving
+    fast, fast_masks = frames[::2].copy(), masks[::2].copy()  # the source played at speed 2
+    aligned = motion_fidelity(frames, masks, fast, fast_masks, source_times=2.0 * np.arange(len(fast)))
+    assert aligned > 0.95
+    assert motion_fidelity(frames, masks, fast, fast_masks) < aligned - 0.05  # frame by frame: twice as fast
+    with pytest.raises(InputError, match="source_times"):
+        motion_fidelity(frames, masks, fast, fast_masks, source_times=np.arange(len(fast)) * 3.0)
+
+
 def _track_similarity(a, b, still):
     """Slow twin of track_similarity: one pair of tracks and one step at a time."""
     sim = np.zeros((a.shape[1], b.shape[1]))

@@ -85,3 +85,57 @@ def test_ctrl_c_wrapped_by_a_compiled_library_is_still_an_interrupt(monkeypatch,
     monkeypatch.setattr(cli, "app", bug)
     with pytest.raises(ValueError):  # a bug is not reported as an interrupt
         cli.main(["demo"])
+
+
+def test_ctrl_c_in_the_report_stage_leaves_none_of_the_outputs(tmp_path, target_png, monkeypatch, capsys):
+    """Every output of a command is one unit: an interrupt late in `run` puts none of them in place."""
+    from test_cli import write_clip
+
+    from marionette import cli
+    from marionette.synthetic import make_scene
+
+    frames, masks = write_clip(tmp_path, make_scene("inplane", num_frames=8, size=(96, 72), seed=2))
+    out, plot = tmp_path / "out.mp4", tmp_path / "plot.png"
+    out.write_bytes(b"an earlier result")
+    plot.write_bytes(b"my own plot")
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()}
+    folders = sorted(p.name for p in tmp_path.iterdir() if p.is_dir())
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("marionette.eval.run_report", interrupted)
+    code = cli.main(["run", str(frames), str(target_png), "--masks", str(masks), "-o", str(out), "-q",
+                     "--plot", str(plot), "--side-by-side", str(tmp_path / "sbs.mp4"),
+                     "--report", str(tmp_path / "report.json"), "--preview", str(tmp_path / "p.gif"),
+                     "--splats", str(tmp_path / "s.npz"), "--ply-dir", str(tmp_path / "plys")])
+    assert code == 130
+    assert capsys.readouterr().err.strip().splitlines() == ["error: interrupted"]
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()} == before
+    assert sorted(p.name for p in tmp_path.iterdir() if p.is_dir()) == folders
+
+
+def test_staged_outputs_are_put_in_place_together_or_not_at_all(tmp_path):
+    from marionette.io.atomic import staged_outputs
+
+    (tmp_path / "a.txt").write_text("old a")
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "notes.txt").write_text("the user's")
+    (tmp_path / "mine" / "x.csv").write_text("old x")
+    with pytest.raises(KeyboardInterrupt), staged_outputs() as outputs:
+        outputs.file(tmp_path / "a.txt").write_text("new a")
+        outputs.file(tmp_path / "b.txt").write_text("new b")
+        raise KeyboardInterrupt
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt", "mine"]
+    assert (tmp_path / "a.txt").read_text() == "old a"
+
+    with staged_outputs() as outputs:
+        a, b = outputs.file(tmp_path / "a.txt"), outputs.file(tmp_path / "b.txt")
+        a.write_text("new a")
+        b.write_text("new b")
+        (outputs.folder(tmp_path / "mine") / "x.csv").write_text("new x")
+        assert (tmp_path / "a.txt").read_text() == "old a" and not (tmp_path / "b.txt").exists()  # not yet
+    assert (tmp_path / "a.txt").read_text() == "new a" and (tmp_path / "b.txt").read_text() == "new b"
+    assert {p.name: p.read_text() for p in (tmp_path / "mine").iterdir()} == {"notes.txt": "the user's",
+                                                                              "x.csv": "new x"}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt", "b.txt", "mine"]

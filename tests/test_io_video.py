@@ -322,3 +322,24 @@ def test_masks_follow_a_frame_range(tmp_path):
     assert np.array_equal(picked, masks[[1, 4, 7]])
     write_masks(tmp_path / "few", masks[[1, 4, 7]])  # exactly the selected frames
     assert np.array_equal(read_masks(tmp_path / "few", count=3, size=(32, 24), indices=[1, 4, 7]), picked)
+
+
+def test_gif_lasts_as_long_as_its_frames_and_stays_small(tmp_path):
+    """GIF delays are whole centiseconds: 1/24 s alternates 4 and 5 cs instead of rounding to 4 (4 % fast)."""
+    from PIL import Image, ImageSequence
+
+    from marionette.synthetic import make_scene
+
+    frames = make_scene("inplane", num_frames=48, size=(160, 120), seed=0, background="plain").frames
+    write_video(tmp_path / "clip.gif", frames, 24)
+    with Image.open(tmp_path / "clip.gif") as gif:
+        delays = [frame.info["duration"] for frame in ImageSequence.Iterator(gif)]
+    assert sum(delays) == pytest.approx(2000, rel=0.01)  # 48 frames at 24 fps: 2 s
+    assert set(delays) <= {40, 50} | {d for d in delays if d > 50}  # 4 or 5 cs, or still frames merged
+    assert read_video(tmp_path / "clip.gif").fps == pytest.approx(24, rel=0.02)
+    # one palette without dithering: 0.14 byte per pixel here, per-frame dithered palettes took 0.27
+    assert (tmp_path / "clip.gif").stat().st_size < 0.18 * frames.size / 3
+    write_video(tmp_path / "fast.gif", frames, 60)  # browsers slow down delays under 2 cs: frames are left out
+    with Image.open(tmp_path / "fast.gif") as gif:
+        delays = [frame.info["duration"] for frame in ImageSequence.Iterator(gif)]
+    assert min(delays) >= 20 and sum(delays) == pytest.approx(800, rel=0.01)

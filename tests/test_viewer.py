@@ -188,6 +188,40 @@ def test_serve_localhost_show_play_and_stop(tmp_path):
         urllib.request.urlopen(viewer.url, timeout=2)
 
 
+def test_view_command_prints_json_once_serving_and_ctrl_c_exits_130(tmp_path):
+    import os
+    import signal
+    import sys
+
+    anim = _animation(n=200, t_count=3)
+    write_splat_animation(tmp_path / "a.npz", anim.gaussians, anim.trajectory, anim.fps)
+    # Its own session with SIGINT at its default, as in a terminal (see test_interrupt.py).
+    proc = subprocess.Popen([sys.executable, "-m", "marionette", "view", str(tmp_path / "a.npz"), "--port", "0",
+                             "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    try:
+        lines = []
+        while lines[-1:] != ["}\n"]:  # the summary, once the page is served: stdout holds nothing else
+            lines.append(proc.stdout.readline())
+            assert lines[-1], proc.stderr.read()
+        summary = json.loads("".join(lines))
+        assert summary["command"] == "view" and summary["figures"]["frames"] == 3
+        with urllib.request.urlopen(summary["figures"]["url"], timeout=10) as page:
+            assert page.status == 200
+    finally:
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert err.strip().splitlines() == ["error: interrupted"]
+
+
+def test_view_command_takes_the_common_options(tmp_path, capsys):
+    from marionette.cli import main
+
+    assert main(["view", str(tmp_path / "a.npz"), "--quiet", "--verbose"]) == 2
+    assert capsys.readouterr().err.strip() == "error: --quiet and --verbose exclude each other"
+
+
 def test_serve_rejects_bad_options():
     anim = _animation(n=20, t_count=2)
     with pytest.raises(InputError, match="port"):

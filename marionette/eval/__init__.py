@@ -2,8 +2,8 @@
 
 from .fidelity import FidelityOptions, motion_fidelity
 from .metrics import frame_metrics, on_white
-from .report import run_report
-from .self_eval import EVAL_EXTRACT, eval_self, self_target
+from .report import result_fidelity, run_report
+from .self_eval import EVAL_EXTRACT, EVAL_SELF_OUTPUTS, eval_self, self_target
 
-__all__ = ["eval_self", "EVAL_EXTRACT", "self_target", "motion_fidelity", "FidelityOptions", "frame_metrics",
-           "on_white", "run_report"]
+__all__ = ["eval_self", "EVAL_EXTRACT", "EVAL_SELF_OUTPUTS", "self_target", "motion_fidelity", "FidelityOptions",
+           "frame_metrics", "on_white", "run_report", "result_fidelity"]

@@ -20,6 +20,12 @@ when their lengths are alike, near 0 when one moves and the other is still,
 and −1 for opposite motion; ``ε`` (``FidelityOptions.still``) makes two still
 steps agree instead of comparing the tracker's jitter. ``sim(a, b)`` is the
 mean of ``s_t`` over the steps both tracks see.
+
+A retimed result (another speed, a loop, reversed) is compared with the
+source at the times it shows: given each result frame's source time ``τ_i``,
+the source's tracks and object size are read at ``τ_i`` (linear between
+frames), so step ``i`` of the result meets the source's step from ``τ_i`` to
+``τ_{i+1}``, and the score does not change with the playback controls.
 """
 
 from __future__ import annotations
@@ -101,22 +107,39 @@ def _object_radius(masks: np.ndarray) -> np.ndarray:
     return np.where(np.isnan(radii), np.nanmedian(radii), radii)
 
 
-def normalised_displacements(frames: np.ndarray, masks: np.ndarray, options: FidelityOptions = FidelityOptions()
-                             ) -> np.ndarray:
+def _at_times(values: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """(T', ...) ``values`` (T, ...) read at fractional frame ``times`` (T',) in [0, T-1], linear between frames.
+
+    A time on a frame takes that frame's value alone (a NaN next door does not spread).
+    """
+    lo = np.clip(np.floor(times).astype(int), 0, len(values) - 2)
+    w = (times - lo).reshape((-1,) + (1,) * (values.ndim - 1))
+    mixed = (1 - w) * values[lo] + w * values[lo + 1]
+    return np.where(w == 0, values[lo], np.where(w == 1, values[lo + 1], mixed))
+
+
+def normalised_displacements(frames: np.ndarray, masks: np.ndarray, options: FidelityOptions = FidelityOptions(),
+                             times: np.ndarray | None = None) -> np.ndarray:
     """Track the object and return its per-step displacements in object radii.
 
     Parameters
     ----------
     frames : (T, H, W, 3) uint8
     masks : (T, H, W) bool, the object.
+    times : (T',) float in [0, T-1] or None
+        Fractional frames to take the steps between (tracks and object size
+        read linearly between frames); None: every frame, ``T' = T``.
 
     Returns
     -------
-    (T-1, M, 2) float64: ``(uv[t+1] - uv[t]) / radius[t]`` for each kept
+    (T'-1, M, 2) float64: ``(uv[t+1] - uv[t]) / radius[t]`` for each kept
     track, NaN where the track is not seen at both ends of the step.
     """
-    tracks = track(frames, masks, spacing=options.spacing)
-    d = np.diff(tracks.uv.astype(np.float64), axis=0) / _object_radius(masks)[:-1, None, None]
+    uv = track(frames, masks, spacing=options.spacing).uv.astype(np.float64)  # (T, M, 2)
+    radius = _object_radius(masks)  # (T,)
+    if times is not None:
+        uv, radius = _at_times(uv, times), _at_times(radius, times)
+    d = np.diff(uv, axis=0) / radius[:-1, None, None]
     steps = np.isfinite(d[..., 0]).sum(axis=0)
     d = d[:, steps >= options.min_steps]
     if d.shape[1] > options.max_tracks:
@@ -162,7 +185,8 @@ def _best_matches(sim: np.ndarray, common: np.ndarray, steps: np.ndarray, min_st
 
 
 def motion_fidelity(source_frames: np.ndarray, source_masks: np.ndarray | None, result_frames: np.ndarray,
-                    result_masks: np.ndarray | None, *, options: FidelityOptions = FidelityOptions()) -> float:
+                    result_masks: np.ndarray | None, *, source_times: np.ndarray | None = None,
+                    options: FidelityOptions = FidelityOptions()) -> float:
     """Motion fidelity of a result video to a source video, in [-1, 1] (1: the same motion).
 
     Parameters
@@ -174,10 +198,15 @@ def motion_fidelity(source_frames: np.ndarray, source_masks: np.ndarray | None, 
         (:func:`~marionette.source.foreground.auto_masks`).
     result_frames : (T', H', W', 3) uint8, any size.
     result_masks : (T', H', W') bool or None, as for the source.
+    source_times : (T',) float in [0, T-1] or None
+        The source time each result frame shows (e.g.
+        :func:`~marionette.transfer.controls.source_times` of the controls
+        that made it); the source is compared at these times (module
+        docstring). None: frame t of one is frame t of the other, and both
+        videos are cut to the shorter one's length.
     options : FidelityOptions
 
-    Both videos are cut to the shorter one's length. A track with no
-    counterpart sharing enough of its steps scores 0.
+    A track with no counterpart sharing enough of its steps scores 0.
     """
     videos = []
     for name, frames, masks in (("source", source_frames, source_masks), ("result", result_frames, result_masks)):
@@ -185,8 +214,17 @@ def motion_fidelity(source_frames: np.ndarray, source_masks: np.ndarray | None, 
         if frames.ndim != 4 or frames.shape[3] != 3 or frames.dtype != np.uint8 or len(frames) < 2:
             raise InputError(f"{name} video must be (T, H, W, 3) uint8 with T >= 2, got {frames.shape} {frames.dtype}")
         videos.append((frames, _object_masks(frames, masks)))
-    t = min(len(videos[0][0]), len(videos[1][0]))
-    a, b = (normalised_displacements(f[:t], m[:t], options) for f, m in videos)
+    (src, src_masks), (res, res_masks) = videos
+    if source_times is None:
+        t = min(len(src), len(res))
+        a = normalised_displacements(src[:t], src_masks[:t], options)
+        b = normalised_displacements(res[:t], res_masks[:t], options)
+    else:
+        source_times = np.asarray(source_times, dtype=np.float64)
+        if source_times.shape != (len(res),) or not np.all((source_times >= 0) & (source_times <= len(src) - 1)):
+            raise InputError(f"source_times must be ({len(res)},) within 0..{len(src) - 1}, one per result frame")
+        a = normalised_displacements(src, src_masks, options, times=source_times)
+        b = normalised_displacements(res, res_masks, options)
     if a.shape[1] == 0 or b.shape[1] == 0:
         raise InputError(f"no track on the object lasts {options.min_steps} frame steps in the "
                          f"{'source' if a.shape[1] == 0 else 'result'} video (too short, or no texture)")

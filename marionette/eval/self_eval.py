@@ -34,12 +34,16 @@ from .fidelity import motion_fidelity
 from .lpips import LPIPS, find_weights
 from .metrics import LPIPS_SKIPPED, frame_metrics, on_white
 
-__all__ = ["eval_self", "self_target", "EVAL_EXTRACT"]
+__all__ = ["eval_self", "self_target", "EVAL_EXTRACT", "EVAL_SELF_OUTPUTS"]
 
 #: Extraction settings of the evaluation: the motion as the source camera saw
 #: it (camera motion kept in the prior), since the render uses that camera,
 #: fixed, as the paper does.
 EVAL_EXTRACT = ExtractOptions(camera_motion=False)
+
+#: The files :func:`eval_self` writes into its output folder, by kind.
+EVAL_SELF_OUTPUTS = {"video": "video.mp4", "metrics": "metrics.json", "frames": "frames.csv",
+                     "side_by_side": "side_by_side.mp4", "metrics_plot": "metrics.png"}
 
 
 def self_target(image: np.ndarray, mask: np.ndarray, prior: SpatPrior, *, inset: int = 1) -> LiftedTarget:
@@ -76,10 +80,11 @@ def eval_self(source: str | Path, masks: str | Path | None = None, output_dir: s
     source : video file or folder of frames.
     masks : folder of per-frame mask PNGs (non-zero = object), or None for
         automatic masks (:func:`~marionette.source.foreground.auto_masks`).
-    output_dir : folder, created if needed. Written (atomically):
-        ``video.mp4`` (the render), ``metrics.json``, ``frames.csv`` (per-frame
-        PSNR and SSIM), ``side_by_side.mp4`` (masked source | render) and
-        ``metrics.png`` (metrics over time).
+    output_dir : folder, created if needed. Written (each file atomically;
+        names in :data:`EVAL_SELF_OUTPUTS`): ``video.mp4`` (the render),
+        ``metrics.json``, ``frames.csv`` (per-frame PSNR and SSIM),
+        ``side_by_side.mp4`` (masked source | render) and ``metrics.png``
+        (metrics over time).
     max_side : frames are downscaled to this long side (intrinsics follow).
     options : extraction settings; by default the prior keeps the camera's
         own motion (:data:`EVAL_EXTRACT`).
@@ -110,9 +115,10 @@ def eval_self(source: str | Path, masks: str | Path | None = None, output_dir: s
     target = self_target(frames[0], mask_stack[0], prior)
     trajectory = pipeline.transfer(prior, target, anchor="world")
     out.mkdir(exist_ok=True)
-    pipeline.render_video(out / "video.mp4", target.gaussians, trajectory, target.camera, fps=video.fps,
+    files = {kind: out / name for kind, name in EVAL_SELF_OUTPUTS.items()}
+    pipeline.render_video(files["video"], target.gaussians, trajectory, target.camera, fps=video.fps,
                           reporter=reporter)
-    rendered = read_video(out / "video.mp4").frames[:, :h, :w]  # as written: codec loss included
+    rendered = read_video(files["video"]).frames[:, :h, :w]  # as written: codec loss included
     reference = on_white(frames, mask_stack)
     with reporter.stage("PSNR and SSIM", 1) as progress:
         psnr, ssim = frame_metrics(reference, rendered)
@@ -144,10 +150,10 @@ def eval_self(source: str | Path, masks: str | Path | None = None, output_dir: s
                 metrics["motion_fidelity"] = motion_fidelity(reference, mask_stack, rendered, None)
             except InputError as e:  # e.g. an object without texture to track: the image metrics still stand
                 metrics["motion_fidelity_skipped"] = str(e)
-    write_video(out / "side_by_side.mp4", pipeline.side_by_side(reference, rendered), video.fps)
-    write_text(out / "frames.csv", _frames_csv(psnr, ssim, lpips))
-    _plot_metrics(out / "metrics.png", psnr, ssim, lpips, video.fps, metrics)
-    write_text(out / "metrics.json", json.dumps(metrics, indent=2) + "\n")
+    write_video(files["side_by_side"], pipeline.side_by_side(reference, rendered), video.fps)
+    write_text(files["frames"], _frames_csv(psnr, ssim, lpips))
+    _plot_metrics(files["metrics_plot"], psnr, ssim, lpips, video.fps, metrics)
+    write_text(files["metrics"], json.dumps(metrics, indent=2) + "\n")
     return metrics
 
 

@@ -1,4 +1,10 @@
-"""Write-then-rename, so a failed or interrupted write never leaves a partial file."""
+"""Write-then-rename, so a failed or interrupted write never leaves a partial file.
+
+:class:`StagedOutputs` extends this to every output of a command: each is
+written under a temporary name beside its place and all are renamed onto
+their places together when the command succeeds, or all removed when it
+fails or is interrupted.
+"""
 
 from __future__ import annotations
 
@@ -13,8 +19,8 @@ from pathlib import Path
 
 from ..errors import InputError
 
-__all__ = ["atomic_path", "atomic_folder", "write_text", "leftover_temporaries", "check_output_path",
-           "check_output_dir", "check_output_folder"]
+__all__ = ["atomic_path", "atomic_folder", "StagedOutputs", "staged_outputs", "write_text", "leftover_temporaries",
+           "check_output_path", "check_output_dir", "check_output_folder"]
 
 
 def _check_parent(path: Path) -> None:
@@ -78,19 +84,8 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     exception, KeyboardInterrupt included, the temporary file is removed and
     an existing ``path`` is left untouched.
     """
-    path = check_output_path(path)
-    fd, tmp = tempfile.mkstemp(prefix=_TMP_PREFIX.format(path.stem), suffix=_TMP_SUFFIX.format(path.suffix),
-                               dir=path.parent or ".")
-    os.close(fd)
-    tmp = Path(tmp)
-    try:
-        yield tmp
-        if tmp.is_file():  # mkstemp makes 0600 files; give the usual umask-based mode
-            tmp.chmod(0o666 & ~_umask())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    with staged_outputs() as outputs:
+        yield outputs.file(path)
 
 
 def check_output_folder(path: str | Path, replaceable: str) -> Path:
@@ -117,22 +112,104 @@ def atomic_folder(path: str | Path, replaceable: str) -> Iterator[Path]:
     exception, KeyboardInterrupt included, the temporary folder is removed
     and ``path`` is left as it was.
     """
-    path = check_output_folder(path, replaceable)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
-    try:
-        yield tmp
-        tmp.chmod(0o777 & ~_umask())
-        if path.is_dir():
-            old = tmp.with_name(tmp.name + ".old")
-            os.replace(path, old)
+    with staged_outputs() as outputs:
+        yield outputs.folder(path, replaceable)
+
+
+class StagedOutputs:
+    """The outputs of one command, written under temporary names and put in place together.
+
+    :meth:`file` and :meth:`folder` check an output's place and return a
+    temporary name beside it, which the command writes to (and reads back
+    from: the output is not in place before :meth:`commit`). :meth:`commit`
+    renames every temporary onto its place, :meth:`discard` removes them all;
+    :func:`staged_outputs` calls one or the other as the command ends. Until
+    the commit, files already at the outputs' places are untouched.
+    """
+
+    def __init__(self) -> None:
+        self._staged: list[tuple[Path, Path, str | None]] = []  # (temporary, place, replaceable or None)
+
+    def file(self, path: str | Path) -> Path:
+        """A temporary file beside ``path`` (same suffix) that becomes ``path`` on commit."""
+        path = check_output_path(path)
+        fd, tmp = tempfile.mkstemp(prefix=_TMP_PREFIX.format(path.stem), suffix=_TMP_SUFFIX.format(path.suffix),
+                                   dir=path.parent)
+        os.close(fd)
+        self._staged.append((Path(tmp), path, None))
+        return Path(tmp)
+
+    def folder(self, path: str | Path, replaceable: str | None = None) -> Path:
+        """An empty temporary folder beside ``path`` whose files go to ``path`` on commit.
+
+        With ``replaceable`` (a regular expression), ``path`` must be missing,
+        empty or hold only files whose names fully match it (an earlier output
+        of the same kind), and it is replaced whole on commit. Without, an
+        existing folder keeps its other files and the new files replace their
+        namesakes.
+        """
+        path = check_output_dir(path) if replaceable is None else check_output_folder(path, replaceable)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+        self._staged.append((tmp, path, replaceable))
+        return tmp
+
+    def commit(self) -> None:
+        """Put every output in its place, in the order staged."""
+        for i, (tmp, path, replaceable) in enumerate(self._staged):
             try:
-                os.replace(tmp, path)
+                if tmp.is_dir():
+                    _publish_folder(tmp, path, replaceable)
+                else:
+                    _publish_file(tmp, path)
             except BaseException:
-                os.replace(old, path)
+                self._staged = self._staged[i:]
+                self.discard()
                 raise
-            shutil.rmtree(old)
-        else:
-            os.replace(tmp, path)
+        self._staged = []
+
+    def discard(self) -> None:
+        """Remove every temporary; nothing is put in place."""
+        for tmp, _, _ in self._staged:
+            if tmp.is_dir():
+                shutil.rmtree(tmp, ignore_errors=True)
+            else:
+                tmp.unlink(missing_ok=True)
+        self._staged = []
+
+
+@contextlib.contextmanager
+def staged_outputs() -> Iterator[StagedOutputs]:
+    """Yield a :class:`StagedOutputs`; commit it if the block succeeds, else discard it (Ctrl-C included)."""
+    outputs = StagedOutputs()
+    try:
+        yield outputs
     except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
+        outputs.discard()
         raise
+    outputs.commit()
+
+
+def _publish_file(tmp: Path, path: Path) -> None:
+    if tmp.is_file():  # mkstemp makes 0600 files; give the usual umask-based mode
+        tmp.chmod(0o666 & ~_umask())
+    os.replace(tmp, path)
+
+
+def _publish_folder(tmp: Path, path: Path, replaceable: str | None) -> None:
+    """Move folder ``tmp`` to ``path``: replace an earlier output whole, or add to the user's folder."""
+    tmp.chmod(0o777 & ~_umask())
+    if not path.is_dir():
+        os.replace(tmp, path)
+    elif replaceable is not None:  # checked to hold only an earlier output
+        old = tmp.with_name(tmp.name + ".old")
+        os.replace(path, old)
+        try:
+            os.replace(tmp, path)
+        except BaseException:
+            os.replace(old, path)
+            raise
+        shutil.rmtree(old)
+    else:
+        for item in tmp.iterdir():
+            os.replace(item, path / item.name)
+        tmp.rmdir()

@@ -1,4 +1,4 @@
-"""SpaT prior files (``.npz``, the contract in DESIGN.md), loaded without pickle."""
+"""SpaT prior files (``.npz``, the contract in docs/DESIGN.md), loaded without pickle."""
 
 from __future__ import annotations
 
