@@ -307,6 +307,7 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
         groups = list(range(seg.num_parts)) + ([STATIC] if (pixel_labels == STATIC).any() else [])
         # Rounded: the scores' last digits follow the BLAS thread count, and the metadata should not.
         metadata["part_selection"] = {str(n): round(float(score), 3) for n, score in seg.scores.items()}
+        metadata["part_selection_note"] = seg.selection
 
     parts, rms = [], []
     with stages("poses", "fitting poses", len(groups) * num_frames) as progress:

@@ -63,6 +63,12 @@ with spatial smoothing in the spirit of PEARL (Isack & Boykov, IJCV 2012):
 
        score(P) = Σ_m n_m ρ(e_m) + P · penalty · τ² · 6 (T - 1)
 
+   Scores within a noise margin (``_SELECTION_MARGIN`` of one part's
+   penalty) count as equal and the simpler model is taken, both for the
+   count and for the whole object's motion against the segmentation's own
+   first motion; :attr:`PartSegmentation.selection` says when that happened.
+   A part's size counts only the frame-0 tracks it explains.
+
    with ``σ = noise``, ``τ = threshold / noise`` and 6 (T - 1) pose
    parameters per moving part (the static group has none). The truncation
    caps what a track costs when no motion explains it, so a new part pays
@@ -127,6 +133,12 @@ _NOISE_SCALE = 3.0
 _THRESHOLD_SCALE = 2.0
 _NOISE_PATCHES = 16
 _NOISE_PATCH = 12
+# Scores closer than this share of one part's penalty are within noise, and the simpler choice is
+# taken: fewer parts, and the segmentation's own first motion over the whole-object one. The same
+# level's score moves by ~1e-8 of it under another BLAS kernel, but the motions of a compromise fit
+# (a hinge fitted as one body) land in other local optima: the first level of the synthetic hinge
+# scored 8967 or 9088 by the BLAS kernel (a part's penalty: 1080), and the labels followed.
+_SELECTION_MARGIN = 0.15
 
 
 class _Motion(NamedTuple):
@@ -162,6 +174,9 @@ class PartSegmentation:
         :data:`OFF_OBJECT` (-3) elsewhere.
     scores : dict[int, float]
         Model-selection score (lower is better) of each number of parts grown.
+    selection : str
+        How the number of parts was chosen, and whether a better-scoring
+        alternative was set aside as within noise (see ``margin``).
     residuals : (M,) float64
         RMS reprojection error (pixels) of each track under the model of its
         label; NaN for tracks too short to fit.
@@ -173,6 +188,7 @@ class PartSegmentation:
     num_parts: int
     pixel_labels: np.ndarray
     scores: dict[int, float] = field(default_factory=dict)
+    selection: str = ""
     residuals: np.ndarray = field(default_factory=lambda: np.zeros(0))
     noise: float = np.nan
     threshold: float = np.nan
@@ -596,9 +612,12 @@ def _refine(problem: _Problem, graph: sparse.csr_matrix, beta: float, motions: l
                         _robust(problem, refit_errors[mine], mine).sum()
                         < _robust(problem, errors[part][mine], mine).sum()):
                     motions[part], errors[part] = refit, refit_errors
-    # A part with too few tracks on the object at frame 0 was not one.
+    # A part that explains too few tracks on the object at frame 0 was not one. Only the tracks it
+    # explains count: the smoothness term also hands it unexplained neighbours (a thin part's drifting
+    # tracks), which made a fragment of 12 drifting lid tracks a part of the hinge.
     labels = _icm(_robust(problem, errors), graph, beta, labels)
-    sizes = np.bincount(labels[problem.vis[0]], minlength=len(motions))
+    explained = errors[labels, np.arange(len(labels))] < threshold
+    sizes = np.bincount(labels[problem.vis[0] & explained], minlength=len(motions))
     keep = np.ones(len(motions), bool)
     keep[first_moving:] = sizes[first_moving:] >= min_part
     if not keep.all():
@@ -611,11 +630,12 @@ def _refine(problem: _Problem, graph: sparse.csr_matrix, beta: float, motions: l
 
 def _grow(problem: _Problem, uv: np.ndarray, graph: sparse.csr_matrix, beta: float, static: bool, max_parts: int,
           min_part: int, penalty: float, hypotheses: int, patch: int, rounds: int, auto: bool,
-          whole: _Motion | None = None) -> dict[int, _Level]:
+          whole: _Motion | None = None, margin: float = 0.0) -> dict[int, _Level]:
     """Add moving parts one at a time, refining all labels and motions after each; every level by P.
 
     ``auto``: stop after the first level whose score is not below the best before. ``whole``: a motion
-    of the whole object, one more candidate for the first part.
+    of the whole object, one more candidate for the first part, taken only when its level scores
+    better than the others by more than ``margin`` (a compromise fit's motion is the least repeatable).
     """
     num_frames, num_tracks = problem.vis.shape
     motions = [_static_motion(num_frames)] if static else []
@@ -631,20 +651,20 @@ def _grow(problem: _Problem, uv: np.ndarray, graph: sparse.csr_matrix, beta: flo
         # may explain every track roughly, a compromise between parts that move almost alike (the
         # cars of a train).
         explained = errors.min(axis=0) < threshold if len(errors) else np.zeros(num_tracks, bool)
-        candidates = []
+        candidates = []  # (motion, handicap on its level's score)
         if (~explained & problem.vis[0]).sum() >= min_part:
-            candidates.append(_new_part(problem, uv, np.nonzero(~explained)[0], hypotheses, patch))
+            candidates.append((_new_part(problem, uv, np.nonzero(~explained)[0], hypotheses, patch), 0.0))
         if len(motions) > first_moving:
-            candidates += [_fit(problem, _patch(uv[0], first, seed, len(first) // 2))
+            candidates += [(_fit(problem, _patch(uv[0], first, seed, len(first) // 2)), 0.0)
                            for seed in _spread(uv[0], first, hypotheses)]
         elif whole is not None:
-            candidates.append(whole)
-        best = None
-        for motion in candidates:
+            candidates.append((whole, margin))
+        best, best_rank = None, np.inf
+        for motion, handicap in candidates:
             level = _refine(problem, graph, beta, motions + [motion], np.vstack([errors, _errors(problem, motion)]),
                             first_moving, min_part, rounds)
-            if len(level.motions) > len(motions) and (best is None or level.score < best.score):
-                best = level
+            if len(level.motions) > len(motions) and level.score + handicap < best_rank:
+                best, best_rank = level, level.score + handicap
         if best is None:
             break
         motions, errors = best.motions, best.errors
@@ -655,6 +675,16 @@ def _grow(problem: _Problem, uv: np.ndarray, graph: sparse.csr_matrix, beta: flo
         if auto and worse:
             break
     return levels
+
+
+def _select_count(scores: dict[int, float], margin: float) -> tuple[int, str]:
+    """The fewest parts whose score is within ``margin`` of the best, and a sentence saying how it was chosen."""
+    best = min(scores, key=scores.get)
+    count = min(p for p, score in scores.items() if score <= scores[best] + margin)
+    if count == best:
+        return count, f"{count} part(s): lowest score"
+    return count, (f"{count} part(s): {best} scored lower by {scores[count] - scores[best]:.1f}, within the noise "
+                   f"margin {margin:.1f}, so the simpler model was kept")
 
 
 def _pixel_labels(positions: np.ndarray, labels: np.ndarray, mask: np.ndarray, k: int = 5,
@@ -803,13 +833,18 @@ def segment_parts(tracks: Tracks, object_mask0: np.ndarray, K: np.ndarray, num_p
                      start=_Motion(rot, trans, rot[:, 2, 2] + trans[:, 2], vis.sum(axis=1) >= 4))
         problem = problem._replace(guarded_refits=True)
 
+    margin = _SELECTION_MARGIN * penalty * problem.cap * 6 * (len(kept) - 1)  # of one part's penalty
     levels = _grow(problem, uv, graph, beta, static, max_parts if auto else int(num_parts), min_part,
-                   penalty * problem.cap, hypotheses, patch, rounds, auto, whole=start)
+                   penalty * problem.cap, hypotheses, patch, rounds, auto, whole=start, margin=margin)
     if not levels:  # everything is static
         num_tracks = vis.shape[1]
         chosen = _Level([_static_motion(len(vis))], np.zeros(num_tracks, np.int64), np.zeros((1, num_tracks)), 0.0)
+        selection = "no moving part"
+    elif auto:
+        count, selection = _select_count({p: level.score for p, level in levels.items()}, margin)
+        chosen = levels[count]
     else:
-        chosen = levels[min(levels, key=lambda p: levels[p].score)] if auto else levels[max(levels)]
+        chosen, selection = levels[max(levels)], f"{max(levels)} part(s) as asked"
 
     first_moving = 1 if static and levels else 0
     if first_moving and (chosen.labels[vis[0]] == 0).sum() < min_part:
@@ -842,5 +877,6 @@ def segment_parts(tracks: Tracks, object_mask0: np.ndarray, K: np.ndarray, num_p
         positions = tracks.uv[tracks.start[at0], np.nonzero(at0)[0]]
     pixel_labels = _pixel_labels(positions.astype(np.float64), np.maximum(labels[at0], STATIC), mask)
     return PartSegmentation(track_labels=labels, num_parts=int(len(order)), pixel_labels=pixel_labels,
-                            scores={p: level.score for p, level in levels.items()}, residuals=residuals,
+                            scores={p: level.score for p, level in levels.items()}, selection=selection,
+                            residuals=residuals,
                             noise=problem.noise, threshold=float(threshold))
