@@ -20,6 +20,7 @@ from .pipeline import extract, fit_view, render_frames, render_video, transfer, 
 from .pipeline import load_target as lift_target
 from .prior import SpatPrior
 from .progress import Reporter
+from .reconstruct import ReconstructOptions, Reconstruction, reconstruct_object
 from .render import render
 from .source import ExtractOptions
 from .target.lift import LiftedTarget, LiftOptions
@@ -33,4 +34,4 @@ __version__ = "0.1.0"
 __all__ = ["extract", "lift_target", "transfer", "render_video", "render_frames", "fit_view", "write_ply_frames",
            "render", "read_prior", "write_prior", "read_ply", "write_ply", "read_video", "write_video",
            "SpatPrior", "Gaussians", "Camera", "Trajectory", "LiftedTarget", "ExtractOptions", "LiftOptions",
-           "Reporter", "InputError", "trajectory_quality", "synthetic", "write_demo_inputs"]
+           "Reporter", "InputError", "reconstruct_object", "ReconstructOptions", "Reconstruction", "trajectory_quality", "synthetic", "write_demo_inputs"]

@@ -42,7 +42,8 @@ from .transfer.parts import labels_from_seeds, seeds_from_layout
 from .transfer.refine import RefineOptions
 from .transfer.velocity import integrate
 
-__all__ = ["extract", "load_target", "relative_depth", "check_target", "check_part_seeds", "transfer", "output_cameras",
+__all__ = ["extract", "reconstruct",
+           "load_target", "relative_depth", "check_target", "check_part_seeds", "transfer", "output_cameras",
            "fit_view", "render_frames", "render_video", "write_ply_frames", "side_by_side", "write_side_by_side",
            "write_preview", "source_intrinsics", "DEFAULT_MAX_SIDE", "PLY_FRAME_NAME"]
 
@@ -86,6 +87,58 @@ def extract(source: str | Path, *, masks: str | Path | None = None, depth: str |
     with contextlib.closing(video.frames):  # stop the decoder however extraction ends
         return extract_prior(video.frames, mask_stack, k, video.fps, depths=depth_stack, options=options,
                              reporter=reporter)
+
+
+def reconstruct(source: str | Path, *, masks: str | Path | None = None, prior: SpatPrior | None = None,
+                focal: float | None = None, start: int = 0, end: int | None = None, stride: int = 1,
+                extract_options: ExtractOptions = ExtractOptions(), options=None,
+                reporter: Reporter | None = None):
+    """Source video (file or frame folder) → the object as Gaussians at frame 0, and the prior used.
+
+    Returns ``(Reconstruction, SpatPrior)``.
+
+    ``start`` and ``end`` select the frames the prior covers; ``stride`` picks
+    every ``stride``-th of them (from the first) for fitting, so the others
+    can test it. Frames are decoded at the prior's size: a given ``prior``
+    must cover the selected frames, and the source, downscaled to the
+    prior's long side, must have the prior's image size. Without a
+    ``prior`` it is extracted first as :func:`extract` does (``max_side``
+    :data:`DEFAULT_MAX_SIDE`, ``focal``, ``extract_options``). Masks are
+    read from ``masks`` or found as extraction finds them
+    (:func:`~marionette.source.foreground.auto_masks`).
+    ``options`` (:class:`~marionette.reconstruct.ReconstructOptions`) sets
+    the fit; its ``max_side`` is the fit's working resolution.
+    """
+    from .reconstruct import ReconstructOptions, reconstruct_object
+    from .source.foreground import auto_masks
+
+    reporter = reporter or Reporter(quiet=True)
+    options = options or ReconstructOptions()
+    options.check()
+    if isinstance(stride, bool) or not isinstance(stride, (int, np.integer)) or stride < 1:
+        raise InputError(f"stride must be a positive integer, got {stride!r}")
+    max_side = DEFAULT_MAX_SIDE if prior is None else int(max(prior.image_size))
+    video = read_video(source, max_side=max_side, start=start, end=end)
+    t, h, w = video.frames.shape[:3]
+    if prior is not None:
+        if prior.num_frames != t:
+            raise InputError(f"the prior has {prior.num_frames} frames but the source has {t} (selected) frames")
+        if tuple(int(v) for v in prior.image_size) != (w, h):
+            raise InputError(f"the prior is for {prior.image_size[0]}x{prior.image_size[1]} frames but the source's "
+                             f"are {w}x{h} at that long side")
+    if masks is not None:
+        mask_stack = read_masks(masks, count=t, size=(w, h), indices=video.indices)
+    else:
+        with reporter.stage("foreground masks", t) as progress:
+            mask_stack = auto_masks(video.frames, progress=progress)
+    if not np.asarray(mask_stack).any():
+        raise InputError("the object is not visible in any frame (every mask is empty)")
+    if prior is None:
+        k = source_intrinsics(w, h, None if focal is None else focal * video.scale)
+        prior = extract_prior(video.frames, mask_stack, k, video.fps, options=extract_options, reporter=reporter)
+    with reporter.stage("reconstruction", options.iterations) as progress:
+        return reconstruct_object(video.frames, mask_stack, prior, frames_used=range(0, t, stride),
+                                  options=options, progress=progress), prior
 
 
 def _camera_for_splats(gaussians: Gaussians, width: int, height: int) -> Camera:

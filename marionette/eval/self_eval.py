@@ -29,12 +29,18 @@ from ..prior import SpatPrior
 from ..progress import Reporter
 from ..source import ExtractOptions, extract_prior
 from ..source.foreground import auto_masks
+from ..reconstruct import ReconstructOptions, reconstruct_object
 from ..target.lift import LiftedTarget, LiftOptions, lift_image
+from ..trajectory import Trajectory
 from .fidelity import motion_fidelity
 from .lpips import LPIPS, find_weights
 from .metrics import LPIPS_SKIPPED, frame_metrics, on_white
 
-__all__ = ["eval_self", "self_target", "EVAL_EXTRACT", "EVAL_SELF_OUTPUTS"]
+__all__ = ["eval_self", "self_target", "EVAL_EXTRACT", "EVAL_SELF_OUTPUTS", "EVAL_TARGETS"]
+
+#: What ``eval_self`` moves: the object reconstructed from the whole video
+#: (:func:`~marionette.reconstruct.reconstruct_object`), or source frame 0 lifted alone.
+EVAL_TARGETS = ("reconstruction", "frame0")
 
 #: Extraction settings of the evaluation: the motion as the source camera saw
 #: it (camera motion kept in the prior), since the render uses that camera,
@@ -72,7 +78,9 @@ def self_target(image: np.ndarray, mask: np.ndarray, prior: SpatPrior, *, inset:
 
 def eval_self(source: str | Path, masks: str | Path | None = None, output_dir: str | Path = "eval-self", *,
               max_side: int = pipeline.DEFAULT_MAX_SIDE, options: ExtractOptions = EVAL_EXTRACT,
-              fidelity: bool = True, reporter: Reporter | None = None) -> dict:
+              fidelity: bool = True, target: str = "reconstruction",
+              reconstruct_options: ReconstructOptions = ReconstructOptions(),
+              reporter: Reporter | None = None) -> dict:
     """Self-transfer of a source video, scored against the source (paper Table 1).
 
     Parameters
@@ -90,6 +98,11 @@ def eval_self(source: str | Path, masks: str | Path | None = None, output_dir: s
         own motion (:data:`EVAL_EXTRACT`).
     fidelity : also report :func:`~marionette.eval.fidelity.motion_fidelity`
         of the render to the masked source.
+    target : ``"reconstruction"`` (default): the source object reconstructed
+        from every frame with the extracted prior, each part moved by its
+        poses; ``"frame0"``: source frame 0 lifted alone (:func:`self_target`),
+        moved by the prior in the source world frame (the paper's protocol).
+    reconstruct_options : settings of the reconstruction.
 
     Returns
     -------
@@ -101,6 +114,8 @@ def eval_self(source: str | Path, masks: str | Path | None = None, output_dir: s
     any recomputation from the files.
     """
     reporter = reporter or Reporter(quiet=True)
+    if target not in EVAL_TARGETS:
+        raise InputError(f"target must be one of {', '.join(EVAL_TARGETS)}, got {target!r}")
     out = check_output_dir(output_dir)
     video = read_video(source, max_side=max_side)
     frames = video.frames
@@ -112,12 +127,19 @@ def eval_self(source: str | Path, masks: str | Path | None = None, output_dir: s
         mask_stack = read_masks(masks, count=t, size=(w, h), indices=video.indices)
     prior = extract_prior(frames, mask_stack, pipeline.source_intrinsics(w, h), video.fps, options=options,
                           reporter=reporter)
-    target = self_target(frames[0], mask_stack[0], prior)
-    trajectory = pipeline.transfer(prior, target, anchor="world")
     out.mkdir(exist_ok=True)
     files = {kind: out / name for kind, name in EVAL_SELF_OUTPUTS.items()}
-    pipeline.render_video(files["video"], target.gaussians, trajectory, target.camera, fps=video.fps,
-                          reporter=reporter)
+    if target == "frame0":
+        lifted = self_target(frames[0], mask_stack[0], prior)
+        gaussians, camera = lifted.gaussians, lifted.camera
+        trajectory = pipeline.transfer(prior, lifted, anchor="world")
+    else:
+        with reporter.stage("reconstruction", reconstruct_options.iterations) as progress:
+            rec = reconstruct_object(frames, mask_stack, prior, options=reconstruct_options, progress=progress)
+        gaussians, camera = rec.gaussians, Camera(prior.intrinsics, np.eye(4), w, h)
+        posed = [rec.at(prior, i).means for i in range(t)]
+        trajectory = Trajectory(np.stack(posed), prior.poses[:, :, :3, :3].transpose(1, 0, 2, 3), rec.parts)
+    pipeline.render_video(files["video"], gaussians, trajectory, camera, fps=video.fps, reporter=reporter)
     rendered = read_video(files["video"]).frames[:, :h, :w]  # as written: codec loss included
     reference = on_white(frames, mask_stack)
     with reporter.stage("PSNR and SSIM", 1) as progress:
@@ -139,9 +161,12 @@ def eval_self(source: str | Path, masks: str | Path | None = None, output_dir: s
         "psnr_min": float(psnr.min()), "ssim_min": float(ssim.min()),
         "frames": t, "width": w, "height": h, "fps": video.fps,
         "source": str(source), "masks": None if masks is None else str(masks),
-        "protocol": "target = source frame 0 with its mask, lifted in the source camera; prior applied in the "
-                    "source world frame; rendered with the source camera on white; compared with source frames "
-                    "masked onto white, whole frames",
+        "target": target,
+        "protocol": ("target = source frame 0 with its mask, lifted in the source camera; prior applied in the "
+                     "source world frame" if target == "frame0" else
+                     "target = the source object reconstructed from every frame with the extracted prior; each part "
+                     "moved by its poses") + "; rendered with the source camera on white; compared with source "
+                    "frames masked onto white, whole frames",
         "camera_motion": prior.metadata.get("camera_motion"),
     }
     if fidelity:

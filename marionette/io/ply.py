@@ -24,7 +24,7 @@ from ..errors import InputError
 from ..gaussians import Gaussians
 from .atomic import atomic_path
 
-__all__ = ["read_ply", "write_ply"]
+__all__ = ["read_ply", "write_ply", "read_ply_property"]
 
 _REQUIRED = ("x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity",
              "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3")
@@ -47,13 +47,24 @@ def _property_names(sh_coeffs: int) -> list[str]:
             + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"])
 
 
-def write_ply(path: str | Path, gaussians: Gaussians) -> None:
+def write_ply(path: str | Path, gaussians: Gaussians, *, extra: dict[str, np.ndarray] | None = None) -> None:
     """Write ``gaussians`` as a binary little-endian 3DGS ``.ply`` (atomically).
 
     All values are stored as float32, so :func:`read_ply` gives them back bitwise.
+    ``extra`` adds vertex properties after the reference ones, by name: (N,)
+    integer arrays are written as ``int``, others as ``float`` (e.g. ``part``,
+    a Gaussian's rigid part, as ``reconstruct`` writes it); 3DGS readers
+    ignore them, :func:`read_ply_property` reads them back.
     """
     gaussians.check_finite()  # we would refuse to read such a file back
     g = gaussians
+    extra = dict(extra or {})
+    for name, values in extra.items():
+        values = np.asarray(values)
+        if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name) or name in _property_names(g.sh.shape[1]):
+            raise InputError(f"extra .ply property name {name!r} is not a free identifier")
+        if values.shape != (len(g),) or values.dtype.kind not in "iuf" or not np.all(np.isfinite(values)):
+            raise InputError(f"extra .ply property {name!r} must be {len(g)} finite numbers, got shape {values.shape}")
     n, c = len(g), g.sh.shape[1]
     rest = g.sh[:, 1:, :].transpose(0, 2, 1).reshape(n, 3 * (c - 1))  # (N, 3(C-1)) channel-major
     columns = np.concatenate(
@@ -62,6 +73,14 @@ def write_ply(path: str | Path, gaussians: Gaussians) -> None:
     )  # (N, P) float32, one column per property
     dtype = np.dtype([(name, "<f4") for name in _property_names(c)])
     vertices = np.ascontiguousarray(columns, dtype="<f4").view(dtype).reshape(n)
+    if extra:
+        kinds = {name: "<i4" if np.asarray(v).dtype.kind in "iu" else "<f4" for name, v in extra.items()}
+        full = np.empty(n, dtype=np.dtype(dtype.descr + list(kinds.items())))
+        for name in dtype.names:
+            full[name] = vertices[name]
+        for name, values in extra.items():
+            full[name] = np.asarray(values).astype(kinds[name])
+        vertices = full
     ply = PlyData([PlyElement.describe(vertices, "vertex")], text=False, byte_order="<")
     with atomic_path(path) as tmp:
         ply.write(str(tmp))
@@ -135,6 +154,30 @@ def read_ply(path: str | Path) -> Gaussians:
         opacity_logits=column("opacity"),
         sh=sh,
     )
+
+
+def read_ply_property(path: str | Path, name: str) -> np.ndarray | None:
+    """(N,) values of the extra vertex property ``name`` of a 3DGS ``.ply`` (int64 for integer types), or None.
+
+    The file is checked as :func:`read_ply` checks it; e.g. ``part``, the
+    rigid part of each Gaussian written by ``reconstruct``.
+    """
+    path = Path(path)
+    read_ply(path)
+    ply = PlyData.read(str(path))
+    vertex = ply["vertex"]
+    props = {prop.name: prop for prop in vertex.properties}
+    if name not in props:
+        return None
+    if isinstance(props[name], PlyListProperty):
+        raise InputError(f"{path}: vertex property '{name}' is a list, expected a number")
+    values = np.asarray(vertex.data[name])
+    if values.dtype.kind in "iu":
+        return values.astype(np.int64)
+    values = values.astype(np.float64)
+    if not np.all(np.isfinite(values)):
+        raise InputError(f"{path}: vertex property '{name}' has NaN or infinite values")
+    return values
 
 
 def _check_header(path: Path) -> None:

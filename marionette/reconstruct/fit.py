@@ -1,0 +1,365 @@
+"""Reconstruct the source object as 3D Gaussians from its video, masks and SpaT prior.
+
+The object is modelled at frame 0 in the prior's world frame; part ``k``'s
+Gaussians seen at frame ``t`` are moved by ``poses[k, t]`` and rendered with
+the prior's camera. Starting from silhouette lifts carved by the masks
+(:mod:`._init`), colours, opacities, positions, orientations and log-scales
+are fitted with Adam (Kingma & Ba 2015) against every fitting frame, the
+object composited on white, with the loss of 3D Gaussian Splatting (Kerbl et
+al. 2023, Eq. 7, without its D-SSIM term) plus an alpha-vs-mask term::
+
+    L = mean |I - Î| + λ_mask mean (A - M)²
+
+and 3DGS's adaptive density control (Sec. 5.2): Gaussians with a large mean
+screen-space positional gradient are cloned (small ones) or split in two
+(large ones), and nearly transparent ones are pruned. Each frame is cropped
+to its object and downscaled (:mod:`._views`); gradients come from
+:func:`marionette.render.render_with_grad`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..camera import Camera
+from ..errors import InputError
+from ..gaussians import Gaussians
+from ..geometry import matrix_to_quaternion, quaternion_to_matrix
+from ..prior import SpatPrior
+from ..progress import ProgressCallback
+from ..render import render
+from ..render.backward import render_with_grad
+from ._init import initial_gaussians, pose_gaussians
+from ._views import FitView, make_view
+
+__all__ = ["ReconstructOptions", "Reconstruction", "reconstruct_object", "masked_psnr"]
+
+
+@dataclass(frozen=True)
+class ReconstructOptions:
+    """Settings of :func:`reconstruct_object` (defaults tuned on the synthetic scenes).
+
+    Attributes
+    ----------
+    iterations : int
+        Adam steps, one fitting frame each (frames are visited in a shuffled cycle).
+    max_side : int
+        Long side of the frames the fit works on, before cropping (intrinsics follow).
+    init_frames : int
+        Frames whose silhouette lifts start the fit (spread over the fitting frames).
+    init_cells : int
+        About this many cells per lift (the lift's pixel stride follows).
+    max_gaussians : int
+        Cap on the number of Gaussians (initial and after densification).
+    lr_means : float
+        Adam step of the centres, in units of the object radius; decays to a tenth.
+    lr_log_scales, lr_opacity, lr_colour, lr_quats : float
+        Adam steps of the log-scales, opacity logits, SH DC coefficients, quaternions.
+    mask_weight : float
+        ``λ_mask`` of the alpha-vs-mask term.
+    densify_every : int
+        Iterations between densification and pruning steps (from ``densify_every``
+        until ``densify_until`` x iterations).
+    densify_until : float
+        Fraction of the iterations after which the number of Gaussians stays fixed.
+    densify_fraction : float
+        Share of the Gaussians with the largest mean screen-space gradient cloned or split per step.
+    split_scale : float
+        Gaussians larger than this (largest std, in object radii) are split, smaller ones cloned.
+    prune_opacity : float
+        Gaussians below this opacity are removed.
+    seed : int
+        Seeds the frame order and the samples of splits and subsampling.
+    """
+
+    iterations: int = 600
+    max_side: int = 480
+    init_frames: int = 4
+    init_cells: int = 2500
+    max_gaussians: int = 12000
+    lr_means: float = 0.002
+    lr_log_scales: float = 0.01
+    lr_opacity: float = 0.05
+    lr_colour: float = 0.04
+    lr_quats: float = 0.003
+    mask_weight: float = 0.5
+    densify_every: int = 100
+    densify_until: float = 0.6
+    densify_fraction: float = 0.05
+    split_scale: float = 0.05
+    prune_opacity: float = 0.02
+    seed: int = 0
+
+    def check(self) -> None:
+        """Raise :class:`InputError` naming the first setting out of range."""
+        if isinstance(self.iterations, bool) or not isinstance(self.iterations, (int, np.integer)) \
+                or not 1 <= self.iterations <= 1_000_000:
+            raise InputError(f"iterations must be an integer in 1..1000000, got {self.iterations!r}")
+        if not 16 <= self.max_side <= 8192:
+            raise InputError(f"max_side must be within 16..8192, got {self.max_side}")
+        if self.init_frames < 1 or self.init_cells < 16 or self.max_gaussians < 16:
+            raise InputError("init_frames must be >= 1, init_cells and max_gaussians >= 16")
+
+
+@dataclass(frozen=True)
+class Reconstruction:
+    """The source object as Gaussians at frame 0 (prior world frame).
+
+    Attributes
+    ----------
+    gaussians : Gaussians, N of them (SH degree 0).
+    parts : (N,) int32, each Gaussian's rigid part (index into the prior's parts).
+    losses : dict
+        ``initial`` and ``final`` mean loss over the fitting frames, ``fit``
+        (mean loss of each ``densify_every`` block of iterations), and the
+        Gaussian counts ``gaussians_initial`` and ``gaussians_final``.
+    frames_used : list of int, the fitting frames.
+    """
+
+    gaussians: Gaussians
+    parts: np.ndarray
+    losses: dict = field(default_factory=dict)
+    frames_used: list = field(default_factory=list)
+
+    def at(self, prior: SpatPrior, t: int) -> Gaussians:
+        """The Gaussians at frame ``t``: part k moved by ``prior.poses[k, t]``."""
+        return pose_gaussians(self.gaussians, self.parts, prior.poses[:, t])
+
+    def render_frame(self, prior: SpatPrior, t: int, camera: Camera | None = None) -> np.ndarray:
+        """(H, W, 3) float32 render of frame ``t`` on white, with the prior's camera by default."""
+        if camera is None:
+            w, h = (int(v) for v in prior.image_size)
+            camera = Camera(prior.intrinsics, np.eye(4), w, h)
+        return render(self.at(prior, t), camera, (1.0, 1.0, 1.0)).image
+
+
+def masked_psnr(rendered: np.ndarray, frame: np.ndarray, mask: np.ndarray) -> float:
+    """PSNR (dB) of a render on white against a frame masked onto white, over the object's pixels.
+
+    ``rendered`` (H, W, 3) float in [0, 1] or uint8, ``frame`` (H, W, 3)
+    uint8, ``mask`` (H, W) bool. The pixels scored are the mask's, so a
+    wrong colour on the object counts fully however small the object is in
+    the frame. Capped at 100 dB.
+    """
+    mask = np.asarray(mask, bool)
+    if not mask.any():
+        raise InputError("masked_psnr: the mask is empty")
+    a = np.asarray(rendered, np.float64)
+    a = a / 255.0 if np.asarray(rendered).dtype == np.uint8 else np.clip(a, 0, 1)
+    b = np.where(mask[..., None], frame, 255).astype(np.float64) / 255.0
+    mse = float(((a - b)[mask] ** 2).mean())
+    return 100.0 if mse <= 1e-10 else float(min(100.0, 10 * np.log10(1.0 / mse)))
+
+
+def _check_inputs(frames, masks, prior: SpatPrior, frames_used: Sequence[int] | None) -> list[int]:
+    """Validate the shapes against the prior; the checked fitting frames."""
+    if not isinstance(prior, SpatPrior):
+        raise InputError(f"prior must be a SpatPrior, got {type(prior).__name__}")
+    shape = tuple(frames.shape)
+    if len(shape) != 4 or shape[3] != 3:
+        raise InputError(f"frames must have shape (T, H, W, 3), got {shape}")
+    t, h, w = shape[:3]
+    if prior.num_frames != t:
+        raise InputError(f"the prior has {prior.num_frames} frames but the source has {t}")
+    if tuple(int(v) for v in prior.image_size) != (w, h):
+        raise InputError(f"the prior is for {prior.image_size[0]}x{prior.image_size[1]} frames but the source's are "
+                         f"{w}x{h}")
+    if tuple(masks.shape) != (t, h, w):
+        raise InputError(f"masks must have shape ({t}, {h}, {w}) to match the frames, got {tuple(masks.shape)}")
+    used = list(range(t)) if frames_used is None else [int(i) for i in frames_used]
+    if not used or any(not 0 <= i < t for i in used) or len(set(used)) != len(used):
+        raise InputError(f"frames_used must be distinct frame indices in 0..{t - 1}")
+    return sorted(used)
+
+
+class _Adam:
+    """Adam over a dict of (N, ...) float arrays; state rows follow the Gaussians through densification."""
+
+    def __init__(self, params: dict[str, np.ndarray], b1: float = 0.9, b2: float = 0.999, eps: float = 1e-15):
+        self.m = {k: np.zeros_like(v, dtype=np.float64) for k, v in params.items()}
+        self.v = {k: np.zeros_like(v, dtype=np.float64) for k, v in params.items()}
+        self.b1, self.b2, self.eps, self.step = b1, b2, eps, 0
+
+    def update(self, params: dict[str, np.ndarray], grads: dict[str, np.ndarray], lrs: dict[str, float]) -> None:
+        self.step += 1
+        c1, c2 = 1 - self.b1 ** self.step, 1 - self.b2 ** self.step
+        for k, g in grads.items():
+            self.m[k] = self.b1 * self.m[k] + (1 - self.b1) * g
+            self.v[k] = self.b2 * self.v[k] + (1 - self.b2) * g * g
+            params[k] -= (lrs[k] * (self.m[k] / c1) / (np.sqrt(self.v[k] / c2) + self.eps)).astype(params[k].dtype)
+
+    def reindex(self, index: np.ndarray, fresh: int) -> None:
+        """Keep rows ``index`` and append ``fresh`` zero rows."""
+        for state in (self.m, self.v):
+            for k, a in state.items():
+                state[k] = np.concatenate([a[index], np.zeros((fresh,) + a.shape[1:])])
+
+
+def _left_matrix(q: np.ndarray) -> np.ndarray:
+    """(N, 4) quaternions ``w, x, y, z`` → (N, 4, 4) matrices ``L`` with ``q ⊗ p = L p``."""
+    w, x, y, z = q.T
+    return np.stack([np.stack([w, -x, -y, -z], -1), np.stack([x, w, -z, y], -1),
+                     np.stack([y, z, w, -x], -1), np.stack([z, -y, x, w], -1)], axis=1)
+
+
+def _loss_and_grads(params: dict, parts: np.ndarray, view: FitView, poses: np.ndarray, q_pose: np.ndarray,
+                    mask_weight: float) -> tuple[float, dict, np.ndarray]:
+    """Loss of one view, gradients per parameter, and each Gaussian's screen-space gradient norm (N,)."""
+    g0 = Gaussians(params["means"], params["quats"], params["log_scales"], params["logits"], params["dc"][:, None])
+    rot = poses[parts, :3, :3]  # (N, 3, 3)
+    posed_means = np.einsum("nij,nj->ni", rot, g0.means.astype(np.float64)) + poses[parts, :3, 3]
+    left = _left_matrix(q_pose)[parts]  # (N, 4, 4)
+    posed_quats = np.einsum("nij,nj->ni", left, g0.quats.astype(np.float64))
+    posed = Gaussians(posed_means.astype(np.float32), posed_quats.astype(np.float32), g0.log_scales,
+                      g0.opacity_logits, g0.sh)
+    out = render_with_grad(posed, view.camera, (1.0, 1.0, 1.0))
+    res = out.output.image - view.target  # (H, W, 3)
+    a_res = out.output.alpha - view.mask  # (H, W)
+    npx = res.shape[0] * res.shape[1]
+    loss = float(np.abs(res).mean() + mask_weight * (a_res ** 2).mean())
+    grads = out.backward(np.sign(res) / (3 * npx), (2 * mask_weight / npx) * a_res)
+    g_means = np.einsum("nji,nj->ni", rot, grads.means.astype(np.float64))  # Rᵀ ∂L/∂μ'
+    g_quats = np.einsum("nji,nj->ni", left, grads.quats.astype(np.float64))  # Lᵀ ∂L/∂q'
+    depth = np.maximum(posed_means[:, 2], 1e-6)
+    screen = np.linalg.norm(grads.means, axis=1) * depth / view.camera.fx  # ∂L per pixel of motion
+    return loss, {"means": g_means, "quats": g_quats, "log_scales": grads.log_scales.astype(np.float64),
+                  "logits": grads.opacity_logits.astype(np.float64),
+                  "dc": grads.sh[:, 0].astype(np.float64)}, screen
+
+
+def _densify(params: dict, parts: np.ndarray, adam: _Adam, score: np.ndarray, options: ReconstructOptions,
+             radius: float, rng: np.random.Generator) -> np.ndarray:
+    """Prune, then clone or split the highest-scoring Gaussians (3DGS Sec. 5.2), in place; the new parts (N',)."""
+    n = len(parts)
+    opacity = 1 / (1 + np.exp(-params["logits"]))
+    alive = opacity >= options.prune_opacity
+    room = max(options.max_gaussians - int(alive.sum()), 0)
+    count = min(int(options.densify_fraction * n), room)
+    chosen = np.zeros(n, bool)
+    if count > 0:
+        ranked = np.argsort(-np.where(alive, score, -np.inf), kind="stable")[:count]
+        chosen[ranked[(score[ranked] > 0) & alive[ranked]]] = True
+    big = chosen & (np.exp(params["log_scales"]).max(axis=1) > options.split_scale * radius)
+    clone = chosen & ~big
+    # Split: the original is replaced by two samples from it, each 1/1.6 the size (3DGS).
+    split_idx = np.flatnonzero(big)
+    keep = np.flatnonzero(alive & ~big)
+    new_rows = {k: [] for k in params}
+    if len(split_idx):
+        q = params["quats"][split_idx].astype(np.float64)
+        rot = quaternion_to_matrix(q / np.linalg.norm(q, axis=1, keepdims=True))
+        std = np.exp(params["log_scales"][split_idx]).astype(np.float64)
+        for _ in range(2):
+            offset = np.einsum("nij,nj->ni", rot, rng.normal(size=std.shape) * std)
+            new_rows["means"].append((params["means"][split_idx] + offset).astype(np.float32))
+            new_rows["log_scales"].append(params["log_scales"][split_idx] - np.float32(np.log(1.6)))
+            for k in ("quats", "logits", "dc"):
+                new_rows[k].append(params[k][split_idx])
+    clone_idx = np.flatnonzero(clone & alive)
+    if len(clone_idx):
+        for k in params:
+            new_rows[k].append(params[k][clone_idx])
+    fresh_parts = np.concatenate([parts[split_idx], parts[split_idx], parts[clone_idx]]).astype(np.int32)
+    fresh = len(fresh_parts)
+    for k in params:
+        params[k] = np.concatenate([params[k][keep]] + new_rows[k]) if new_rows[k] else params[k][keep]
+    adam.reindex(keep, fresh)
+    return np.concatenate([parts[keep], fresh_parts])
+
+
+def reconstruct_object(frames, masks, prior: SpatPrior, *, frames_used: Sequence[int] | None = None,
+                       options: ReconstructOptions = ReconstructOptions(),
+                       progress: ProgressCallback | None = None) -> Reconstruction:
+    """Fit the source object as 3D Gaussians at frame 0 to the frames it is seen in.
+
+    Parameters
+    ----------
+    frames : (T, H, W, 3) uint8 array or VideoFrames
+        Source frames at the prior's resolution (``prior.image_size``).
+    masks : (T, H, W) bool array or PackedMasks
+        Object masks of those frames.
+    prior : SpatPrior
+        K parts over T frames; ``extras['labels']`` (frame-0 part layout) assigns
+        parts when K > 1.
+    frames_used : sequence of int, optional
+        Fitting frames (default all); frames where the object is not visible are skipped.
+    options : ReconstructOptions
+    progress : callable ``(done, total)``, optional
+        Called after every iteration.
+
+    Returns
+    -------
+    Reconstruction
+        Gaussians (N) at frame 0 in the prior's world frame, each Gaussian's
+        part (N,), and the losses.
+    """
+    options.check()
+    used = _check_inputs(frames, masks, prior, frames_used)
+    visible = [t for t in used if np.asarray(masks[t]).any()]
+    if not visible:
+        raise InputError("the object is not visible (empty mask) in any of the frames to fit")
+    rng = np.random.default_rng(options.seed)
+    w, h = (int(v) for v in prior.image_size)
+    scale = min(1.0, options.max_side / max(w, h))
+    views = [make_view(t, np.asarray(frames[t]), np.asarray(masks[t], bool), prior.intrinsics, scale)
+             for t in visible]
+    picks = np.unique(np.rint(np.linspace(0, len(visible) - 1, min(options.init_frames, len(visible)))).astype(int))
+    gaussians, parts = initial_gaussians(frames, masks, prior, [visible[i] for i in picks], visible,
+                                         cells=options.init_cells, max_gaussians=options.max_gaussians,
+                                         seed=options.seed)
+    radius = float(np.max(prior.radii))
+    params = {"means": gaussians.means.copy(), "quats": gaussians.quats.copy(),
+              "log_scales": gaussians.log_scales.copy(), "logits": gaussians.opacity_logits.copy(),
+              "dc": gaussians.sh[:, 0].copy()}
+    poses = {t: prior.poses[:, t] for t in visible}
+    q_pose = {t: matrix_to_quaternion(prior.poses[:, t, :3, :3]) for t in visible}
+    adam = _Adam(params)
+
+    def mean_loss() -> float:
+        return float(np.mean([_loss_and_grads(params, parts, v, poses[v.frame], q_pose[v.frame],
+                                              options.mask_weight)[0] for v in views]))
+
+    losses: dict = {"initial": mean_loss(), "gaussians_initial": len(parts), "fit": []}
+    accum = np.zeros(len(parts))
+    seen = np.zeros(len(parts))
+    order: list[int] = []
+    block: list[float] = []
+    total = options.iterations
+    last_densify = int(options.densify_until * total)
+    for it in range(total):
+        if not order:
+            order = list(rng.permutation(len(views)))
+        view = views[order.pop()]
+        loss, grads, screen = _loss_and_grads(params, parts, view, poses[view.frame], q_pose[view.frame],
+                                              options.mask_weight)
+        block.append(loss)
+        decay = 0.1 ** (it / max(total - 1, 1))
+        lrs = {"means": options.lr_means * radius * decay, "quats": options.lr_quats,
+               "log_scales": options.lr_log_scales, "logits": options.lr_opacity, "dc": options.lr_colour}
+        adam.update(params, grads, lrs)
+        accum += screen
+        seen += screen > 0
+        if (it + 1) % options.densify_every == 0:
+            losses["fit"].append(float(np.mean(block)))
+            block = []
+            if it + 1 <= last_densify and it + 1 < total:
+                parts = _densify(params, parts, adam, accum / np.maximum(seen, 1), options, radius, rng)
+                accum, seen = np.zeros(len(parts)), np.zeros(len(parts))
+        if progress:
+            progress(it + 1, total)
+    if block:
+        losses["fit"].append(float(np.mean(block)))
+    # Final prune of what the fit made transparent.
+    keep = 1 / (1 + np.exp(-params["logits"])) >= options.prune_opacity
+    if keep.sum() >= 1:
+        params = {k: v[keep] for k, v in params.items()}
+        parts = parts[keep]
+    losses["final"] = mean_loss()
+    losses["gaussians_final"] = len(parts)
+    result = Gaussians(params["means"], params["quats"], params["log_scales"], params["logits"],
+                       params["dc"][:, None])
+    result.check_finite()
+    return Reconstruction(result, parts.astype(np.int32), losses, visible)
