@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import platform
 import subprocess
 import sys
 
@@ -124,3 +125,51 @@ def test_grabcut_repeats_exactly_in_one_process():
     first = grabcut_mask(image)
     for _ in range(3):
         assert np.array_equal(grabcut_mask(image), first)
+
+
+# The BLAS kernel changes the last bits of every LAPACK/BLAS result. Haswell is what some CPUs here
+# force; on an AVX2 machine it is the default kernel anyway, so Sandybridge (another x86-64 kernel,
+# other rounding) is there to make the perturbation real on every x86-64 machine.
+KERNELS = [{}, {**ONE_THREAD, "OPENBLAS_CORETYPE": "Haswell"}]
+if platform.machine() in ("x86_64", "AMD64"):
+    KERNELS.append({"OPENBLAS_CORETYPE": "Sandybridge"})
+
+
+def rotation_gap_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Angle (degrees) of R_aᵀ R_b for poses (..., 4, 4)."""
+    rel = np.swapaxes(a[..., :3, :3], -1, -2) @ b[..., :3, :3]
+    return np.degrees(np.arccos(np.clip((np.trace(rel, axis1=-2, axis2=-1) - 1) / 2, -1.0, 1.0)))
+
+
+@pytest.mark.parametrize("motion, frames, size", [("outofplane", 16, (160, 120)), ("hinge", 20, (200, 150))])
+def test_parts_auto_does_not_follow_the_blas_kernel_or_thread_count(motion, frames, size, tmp_path):
+    """Issue 14: the same ``extract --parts auto`` under 1 and 2 threads and other BLAS kernels.
+
+    The part count (and how it was chosen) must agree everywhere; the poses of a one-part motion and of
+    the hinge's still body within 0.05°. The hinge's lid is not held to it: Lucas-Kanade drift on the
+    thin lid leaves its pose ill-determined (tens of degrees off the truth, xfail in test_extract), and
+    PnP RANSAC and the bundle adjustment then amplify last-bit differences (measured: 9-14° apart).
+    """
+    scene = make_scene(motion, seed=0, num_frames=frames, size=size)
+    write_video(tmp_path / "frames", scene.frames, scene.fps)
+    (tmp_path / "masks").mkdir()
+    for i, m in enumerate(scene.masks):
+        cv2.imwrite(str(tmp_path / "masks" / f"{i:05d}.png"), m.astype(np.uint8) * 255)
+    priors = []
+    for run, env in enumerate(KERNELS):
+        out = tmp_path / f"prior{run}.npz"
+        cli("extract", tmp_path / "frames", "--masks", tmp_path / "masks", "--parts", "auto", "-o", out, env=env)
+        with np.load(out) as f:
+            priors.append((f["poses"], json.loads(f["metadata"].item())))
+    poses, meta = priors[0]
+    truth = 2 if motion == "hinge" else 1
+    assert meta["num_parts"] == truth
+    for other, other_meta in priors[1:]:
+        assert other_meta["num_parts"] == meta["num_parts"]
+        assert other_meta["part_selection_note"] == meta["part_selection_note"]
+        if motion == "hinge":  # the still body: the part that turns least
+            body = int(np.argmin(rotation_gap_deg(np.eye(4), poses[:, -1])))
+            other_body = int(np.argmin(rotation_gap_deg(np.eye(4), other[:, -1])))
+            assert rotation_gap_deg(poses[body], other[other_body]).max() < 0.05
+        else:
+            assert rotation_gap_deg(poses, other).max() < 0.05
