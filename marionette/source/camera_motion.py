@@ -1,6 +1,6 @@
 """Camera motion from background tracks, and its removal from object poses.
 
-The world frame is the camera frame of source frame 0 (DESIGN.md). When the
+The world frame is the camera frame of source frame 0 (docs/DESIGN.md). When the
 camera moves, a pose fitted in the camera of frame t mixes the object's
 motion with the camera's; this module estimates the camera's motion from
 the background and takes it out again (:func:`to_world`).

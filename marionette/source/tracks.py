@@ -31,7 +31,7 @@ The two corrections are numba kernels, each with a NumPy twin of the same
 name plus ``_numpy`` that the tests compare it with.
 
 Pixel convention: (u, v) with (0, 0) at the centre of the top-left pixel
-(DESIGN.md), which is also OpenCV's.
+(docs/DESIGN.md), which is also OpenCV's.
 """
 
 from __future__ import annotations
