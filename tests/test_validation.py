@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -183,7 +184,8 @@ CASES = {
                                                    "{out}/missing/" + cmd[cmd.index("-o") + 1].split("/")[-1]),
                                            "does not exist")
        for cmd in (TRANSFER, RUN, EXTRACT, RENDER)},
-    **{f"{cmd[0]} output is a folder": (replace(cmd, cmd[cmd.index("-o") + 1], "{out}/sub.png"), "folder")
+    **{f"{cmd[0]} output is a folder": (replace(cmd, cmd[cmd.index("-o") + 1],
+                                                "{out}/sub" + Path(cmd[cmd.index("-o") + 1]).suffix), "folder")
        for cmd in (EXTRACT, RENDER)},
     "transfer unsupported output": (replace(TRANSFER, "{out}/out.mp4", "{out}/out.avi"), "unsupported video output"),
     "render unsupported output": (replace(RENDER, "{out}/image.png", "{out}/image.webp"), "unsupported image output"),
@@ -199,7 +201,8 @@ PARAMS = [pytest.param(args, words, quiet, id=f"{name}{'' if quiet else ' (progr
 def test_bad_input_is_one_error_line_exit_2_and_no_output(tmp_path, capfd, inputs, args, words, quiet):
     out = tmp_path / "out"
     out.mkdir()
-    (out / "sub.png").mkdir()  # an output path that is a folder
+    for suffix in (".png", ".npz"):
+        (out / f"sub{suffix}").mkdir()  # an output path that is a folder, with the suffix its command takes
     before = sorted(p.relative_to(out) for p in out.rglob("*"))
     code = main([a.format(**{"in": inputs, "out": out}) for a in args if quiet or a != "-q"])
     err = capfd.readouterr().err.strip().splitlines()
