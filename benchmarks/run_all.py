@@ -67,8 +67,9 @@ BENCHES = (
 #: RESULTS.md sections: title, one line on what it answers, pages in order.
 SECTIONS = (
     ("Table 1: self-reconstruction, paper vs ours",
-     "The paper's Table 1 protocol on the real clips (source frame 0 as the target, rendered with the source"
-     " camera, compared with the masked source frames on white).", ("table1.md",)),
+     "The paper's Table 1 protocol on the real clips: the source object reconstructed from the clip (and, held"
+     " out, from its even frames only) or source frame 0 lifted alone, moved by the extracted prior, rendered"
+     " with the source camera and compared with the masked source frames on white.", ("table1.md",)),
     ("Pose accuracy on the synthetic suite",
      "Rotation and centroid errors against exact ground truth, by motion type and tracking noise; rigid parts"
      " found on the synthetic hinge; the accuracy of the tracks they come from.",
@@ -204,37 +205,66 @@ def plot_pose_accuracy(page: Path, path: Path) -> bool:
     return True
 
 
-def plot_table1(page: Path, path: Path) -> bool:
-    """Bars of PSNR, SSIM (and LPIPS where computed), the paper's and ours, per clip, from the table of
-    ``table1.md`` (columns ``PSNR (dB)``, ``SSIM``, ``LPIPS`` and ``paper SpaT PSNR / SSIM / LPIPS``); False
-    when it has none."""
-    from matplotlib.figure import Figure
-
+def table1_series(text: str) -> tuple[list[str], dict[str, list[float]], dict[str, dict[str, list[float]]]] | None:
+    """The bars of the Table 1 plot from ``table1.md``'s text: clips, the paper's (PSNR, SSIM, LPIPS) per clip,
+    and ours per target (the ``target`` column's values in order; ``ours`` when the table has none) per clip.
+    Only clips with a paper row; a target missing for a clip, or an LPIPS that is not a number, is NaN. None
+    when the page has no such table."""
     paper_column = "paper SpaT PSNR / SSIM / LPIPS"
-    table = next((t for t in markdown_tables(page.read_text()) if {"PSNR (dB)", "SSIM", paper_column} <= set(t[0])),
-                 None)
+    table = next((t for t in markdown_tables(text) if {"PSNR (dB)", "SSIM", paper_column} <= set(t[0])), None)
     if table is None:
-        return False
+        return None
     col = {name: i for i, name in enumerate(table[0])}
     rows = [row for row in table[1:] if re.fullmatch(r"[\d.]+ / [\d.]+ / .*", row[col[paper_column]])]
     if not rows:
+        return None
+
+    def number(cell: str) -> float:
+        return float(cell) if re.fullmatch(r"[\d.]+", cell) else float("nan")
+
+    clip_of = (lambda row: row[col["clip"]]) if "clip" in col else (lambda row: row[0])
+    clips = list(dict.fromkeys(clip_of(row) for row in rows))
+    paper = {clip_of(row): [number(v) for v in row[col[paper_column]].split(" / ")] for row in rows}
+    targets = list(dict.fromkeys(row[col["target"]] for row in rows)) if "target" in col else ["ours"]
+    ours = {t: {c: [float("nan")] * 3 for c in clips} for t in targets}
+    for row in rows:
+        target = row[col["target"]] if "target" in col else "ours"
+        lpips = number(row[col["LPIPS"]]) if "LPIPS" in col else float("nan")
+        ours[target][clip_of(row)] = [float(row[col["PSNR (dB)"]]), float(row[col["SSIM"]]), lpips]
+    return clips, paper, ours
+
+
+def plot_table1(page: Path, path: Path) -> bool:
+    """Bars of PSNR, SSIM (and LPIPS where computed), the paper's and ours (one bar per target when the table
+    has a ``target`` column), per clip, from the table of ``table1.md`` (columns ``PSNR (dB)``, ``SSIM``,
+    ``LPIPS`` and ``paper SpaT PSNR / SSIM / LPIPS``); False when it has none."""
+    import math
+
+    from matplotlib.figure import Figure
+
+    series = table1_series(page.read_text())
+    if series is None:
         return False
-    names = [row[col["clip"]] if "clip" in col else row[0] for row in rows]
+    clips, paper, ours = series
     panels = [("PSNR (dB)", 0, "higher"), ("SSIM", 1, "higher")]
-    if "LPIPS" in col and all(re.fullmatch(r"[\d.]+", row[col["LPIPS"]]) for row in rows):
+    if any(not math.isnan(v[2]) for values in ours.values() for v in values.values()):
         panels.append(("LPIPS", 2, "lower"))
-    fig = Figure(figsize=(4.5 * len(panels), 3.6), dpi=100)
+    colours = ["#3b75af", "#e08a2c", "#5aa05a", "#9467bd"]
+    width = 0.8 / (1 + len(ours))
+    fig = Figure(figsize=(max(4.5, 1.5 + 0.3 * len(clips) * (1 + len(ours))) * len(panels), 3.8), dpi=100)
     for ax, (metric, index, better) in zip(fig.subplots(1, len(panels)), panels):
-        paper = [float(row[col[paper_column]].split(" / ")[index]) for row in rows]
-        ours = [float(row[col[metric]]) for row in rows]
-        x = range(len(rows))
-        ax.bar([i - 0.2 for i in x], paper, 0.4, label="paper (SpaT prior)", color="#bbbbbb")
-        ax.bar([i + 0.2 for i in x], ours, 0.4, label="ours", color="#3b75af")
-        ax.set_xticks(list(x), names, fontsize=8)
-        ax.set_ylim(0, 1.3 * max(paper + ours))  # room for the legend
+        heights = [("paper (SpaT prior)", [paper[c][index] for c in clips], "#bbbbbb")]
+        heights += [(f"ours, {t}" if t != "ours" else "ours", [ours[t][c][index] for c in clips],
+                     colours[j % len(colours)]) for j, t in enumerate(ours)]
+        for j, (label, values, colour) in enumerate(heights):
+            offset = (j - (len(heights) - 1) / 2) * width
+            ax.bar([i + offset for i in range(len(clips))], values, width, label=label, color=colour)
+        top = max(v for _, values, _ in heights for v in values if not math.isnan(v))
+        ax.set_xticks(list(range(len(clips))), clips, fontsize=8)
+        ax.set_ylim(0, 1.4 * top)  # room for the legend
         ax.set_ylabel(f"{metric}, {better} is better")
         ax.grid(True, axis="y", alpha=0.3)
-        ax.legend(fontsize=8)
+        ax.legend(fontsize=7, ncol=2)
     _save(fig, "Table 1: self-transfer on the real clips, paper vs ours", path)
     return True
 

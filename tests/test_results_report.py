@@ -39,6 +39,17 @@ TABLE1_PAGE = """# Table 1
 | extra | backpack | 18.00 | 0.900 | skipped | – |
 """
 
+TABLE1_TARGETS_PAGE = """# Table 1
+
+| category | clip | target | PSNR (dB) | SSIM | LPIPS | paper SpaT PSNR / SSIM / LPIPS |
+|---|---|---|---|---|---|---|
+| single-slow | davis_car-shadow | reconstruction | 26.50 | 0.970 | 0.030 | 19.08 / 0.95 / 0.09 |
+| single-slow | davis_car-shadow | held-out | 25.00 | 0.960 | 0.040 | 19.08 / 0.95 / 0.09 |
+| single-slow | davis_car-shadow | frame0 | 22.27 | 0.952 | skipped | 19.08 / 0.95 / 0.09 |
+| single-fast | davis_car-turn | reconstruction | 27.00 | 0.975 | 0.050 | 25.88 / 0.98 / 0.02 |
+| extra | backpack | reconstruction | 18.00 | 0.900 | 0.300 | – |
+"""
+
 SCALING_PAGE = """# Scaling
 
 Extraction grows as T^1.05 (FAKE-SCALING-MARKER).
@@ -108,6 +119,28 @@ def test_pose_accuracy_panels_read_the_summary_and_the_exact_track_tables():
     assert panels[2][1]["1"] == {"translation": 5.33, "hinge": 5.03}  # the summary's, not the exact table's
     assert [label for label, _ in run_all.pose_accuracy_panels(EXTRACT_PAGE.split("On exact")[0])] == [
         "rotation error (deg)", "centroid error (% radius)"]
+
+
+def test_table1_series_has_a_bar_per_target_and_clip():
+    clips, paper, ours = run_all.table1_series(TABLE1_TARGETS_PAGE)
+    assert clips == ["davis_car-shadow", "davis_car-turn"]  # the backpack has no paper row
+    assert paper["davis_car-turn"] == [25.88, 0.98, 0.02]
+    assert list(ours) == ["reconstruction", "held-out", "frame0"]
+    assert ours["reconstruction"]["davis_car-turn"] == [27.0, 0.975, 0.05]
+    assert ours["frame0"]["davis_car-shadow"][:2] == [22.27, 0.952]
+    assert np.isnan(ours["frame0"]["davis_car-shadow"][2])  # LPIPS skipped
+    assert all(np.isnan(ours[t]["davis_car-turn"]).all() for t in ("held-out", "frame0"))  # not run
+    # Without a target column, one series named "ours".
+    _, _, single = run_all.table1_series(TABLE1_PAGE)
+    assert list(single) == ["ours"] and single["ours"]["davis_car-shadow"][0] == 21.94
+    assert run_all.table1_series(EXTRACT_PAGE) is None
+
+
+def test_plot_table1_draws_the_targets(tmp_path):
+    page = tmp_path / "table1.md"
+    page.write_text(TABLE1_TARGETS_PAGE)
+    assert run_all.plot_table1(page, tmp_path / "table1.png")
+    assert (tmp_path / "table1.png").stat().st_size > 1000
 
 
 def test_markdown_tables_drop_the_rule_and_split_cells():
