@@ -161,13 +161,15 @@ def main() -> None:
         "wall figures depend on what else the machine runs (load average below). Speed-up: "
         "reference seconds over the median frame time. PSNR compares the two images of the full "
         "scene.",
-        "",
-        "| machine | |",
-        "|---|---|",
     ]
-    lines += [f"| {k} | {v} |" for k, v in info.items()]
+    write_page("rasterizer.md", lines, info)
+
+
+def write_page(name: str, lines: list[str], info: dict[str, str]) -> None:
+    """``lines`` and the machine table ``info`` → ``docs/benchmarks/<name>`` and stdout."""
+    lines = lines + ["", "| machine | |", "|---|---|"] + [f"| {k} | {v} |" for k, v in info.items()]
     text = "\n".join(lines) + "\n"
-    doc = ROOT / "docs" / "benchmarks" / "rasterizer.md"
+    doc = ROOT / "docs" / "benchmarks" / name
     doc.parent.mkdir(parents=True, exist_ok=True)
     doc.write_text(text)
     print(text)

@@ -24,7 +24,6 @@ import sys
 import time
 from pathlib import Path
 
-import numba
 import numpy as np
 
 from marionette.render import render
@@ -32,7 +31,7 @@ from marionette.render.backward import render_with_grad
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from bench_rasterizer import SIZE, machine_info, make_scene  # noqa: E402
+from bench_rasterizer import SIZE, machine_info, make_scene, write_page  # noqa: E402
 
 COUNTS = (10_000, 100_000, 300_000)
 
@@ -119,16 +118,8 @@ def main() -> None:
         "render_with_grad and backward: median wall milliseconds of the two halves of an iteration "
         "(backward includes checking the upstream gradient, the tile pass and the projection pass). "
         "Wall figures depend on what else the machine runs (load average below).",
-        "",
-        "| machine | |",
-        "|---|---|",
     ]
-    lines += [f"| {k} | {v} |" for k, v in info.items()]
-    text = "\n".join(lines) + "\n"
-    doc = ROOT / "docs" / "benchmarks" / "rasterizer_grad.md"
-    doc.parent.mkdir(parents=True, exist_ok=True)
-    doc.write_text(text)
-    print(text)
+    write_page("rasterizer_grad.md", lines, info)
 
 
 if __name__ == "__main__":

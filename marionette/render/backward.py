@@ -9,13 +9,14 @@ low-pass, square 3σ box, ``α = min(0.99, o e^power)``, skip ``α < 1/255``,
 stop when ``T (1 - α) < 1e-4``, near plane 0.2, the 1.3× clamp of the
 Jacobian, colours ``max(SH + 0.5, 0)``, the image clipped to [0, 1]).
 
-1. ``_blend_save``: the forward compositing of ``_blend``, unchanged in its
-   arithmetic (the image is bit-identical to :func:`render`), that also keeps
-   per pixel the final transmittance ``T_N`` and the tile-list position of the
-   last Gaussian added (gsplat's ``render_alphas`` / ``last_ids``), and which
-   channels were not clipped.
+1. The forward is :func:`render`'s own (``_forward`` with ``save``, so the
+   image is the same to the bit): ``_blend`` also keeps per pixel the final
+   transmittance ``T_N``, the tile-list position of the Gaussian that stopped
+   the pixel (gsplat's ``render_alphas`` / ``last_ids``, one position later)
+   and which channels were not clipped, and per tile row the last Gaussian
+   that visited it.
 2. ``_blend_backward`` (parallel over tiles): each tile walks its list back to
-   front from its pixels' last index, rebuilding ``T_i = T_{i+1} / (1 - α_i)``
+   front from the last Gaussian that visited its rows, rebuilding ``T_i = T_{i+1} / (1 - α_i)``
    and the colour behind, ``S_i = Σ_{j>i} c_j α_j T_j + T_N bg``:
 
    - ``∂C/∂c_i = α_i T_i``;
@@ -79,9 +80,9 @@ from ..camera import Camera
 from ..errors import InputError
 from ..gaussians import Gaussians
 from .rasterizer import (
-    _B, _BIN_RUNS, _CA, _CB, _CC, _G, _OPACITY, _R, _U, _V, _Z, LOW_PASS, TILE,
-    RenderOutput, _activations, _bin, _check_background, _depth_order, _exp_clamped, _gather,
-    _preprocess,
+    _B, _CA, _CB, _CC, _G, _OPACITY, _R, TILE, RenderOutput, _check_background, _direction_limits,
+    _exp_clamped, _forward, _Frame, _rotation, _screen_covariance, _splat, _splat_row, _tile_origin,
+    _world_covariance,
 )
 from .sh import SH_C0, SH_C1, SH_C2, SH_C3, _sh_channel
 
@@ -122,29 +123,20 @@ class RenderGradients:
 
 @dataclass(frozen=True)
 class _Saved:
-    """What the backward pass needs from the forward (M visible Gaussians, P tile pairs)."""
+    """What the backward pass needs from the forward."""
 
     gaussians: Gaussians
     camera: Camera
     background: np.ndarray  # (3,) float32
-    variances: np.ndarray   # (N, 3) float32
-    opacities: np.ndarray   # (N,) float32
-    order: np.ndarray       # (M,) int32, row in depth order → Gaussian
-    params: np.ndarray      # (M, 10) float32, front to back
-    boxes: np.ndarray       # (M, 4) int32
-    tile_start: np.ndarray  # (n_tiles + 1,) int64
-    tile_ids: np.ndarray    # (P,) int32
+    frame: _Frame           # the forward's tables, with its per-pixel state (save=True)
     pair_start: np.ndarray  # (N + 1,) int64, see _pair_start
-    t_final: np.ndarray     # (H, W) float32 final transmittance
-    last: np.ndarray        # (H, W) int32 tile-list position of the last Gaussian added, -1 if none
-    unclipped: np.ndarray   # (H, W, 3) bool, the colour before clipping lies in [0, 1]
 
 
 class RenderWithGrad:
     """A rendered view that can return gradients: :attr:`output` and :meth:`backward`.
 
     Made by :func:`render_with_grad`; keeps per pixel only the final
-    transmittance, the last Gaussian index and the clip mask, plus the
+    transmittance, the stopping Gaussian's index and the clip mask, plus the
     forward's sorted tables (a few tens of bytes per Gaussian).
     """
 
@@ -189,18 +181,20 @@ class RenderWithGrad:
                     raise InputError(f"backward: pivot must be finite with shape (3,) or ({len(masks)}, 3), "
                                      f"got {pv.shape}")
                 pivots[:] = pv
-        g_img = np.where(s.unclipped, g_img, np.float32(0.0))
+        f = s.frame
+        g_img = np.where(f.unclipped, g_img, np.float32(0.0))
 
         previous = numba.set_parallel_chunksize(1)
         try:
-            pair = _blend_backward(s.tile_start, s.tile_ids, s.params, s.boxes, w, h, s.background,
-                                   s.t_final, s.last, g_img, g_a, s.order, s.pair_start)
+            pair = _blend_backward(f.tile_start, f.tile_ids, f.params, f.boxes, w, h, s.background,
+                                   f.t_final, f.stop, f.row_last, g_img, g_a, f.order, s.pair_start,
+                                   np.zeros((len(f.tile_ids), _NGRAD), np.float32))
         finally:
             numba.set_parallel_chunksize(previous)
         gs = s.gaussians
         cam = s.camera
         v_means, v_quats, v_log_scales, v_logits, v_sh, contrib = _project_backward(
-            gs.means, gs.quats, s.variances, s.opacities, gs.sh, cam.world_to_camera, cam.K, cam.center,
+            gs.means, gs.quats, f.variances, f.opacities, gs.sh, cam.world_to_camera, cam.K, cam.center,
             w, h, pair, s.pair_start, masks is not None)
         pose = None
         if masks is not None:
@@ -246,26 +240,9 @@ def render_with_grad(gaussians: Gaussians, camera: Camera,
     if not isinstance(camera, Camera):
         raise InputError(f"render_with_grad: camera must be a Camera, got {type(camera).__name__}")
     bg = _check_background(background)
-    w, h = camera.width, camera.height
-    variances, opacities, ellipse = _activations(gaussians.log_scales, gaussians.opacity_logits)
-    params, boxes, depths, status = _preprocess(
-        gaussians.means, gaussians.quats, gaussians.log_scales, gaussians.opacity_logits,
-        gaussians.sh, variances, opacities, ellipse, camera.world_to_camera, camera.K,
-        camera.center, w, h)
-    if np.any(status < 0):
-        gaussians.check_finite()  # raises, naming the attribute
-    order = _depth_order(depths, status)
-    params, boxes = _gather(order, params, boxes)
-    tile_start, tile_ids = _bin(boxes, w, h, _BIN_RUNS)
-    previous = numba.set_parallel_chunksize(1)
-    try:
-        image, alpha, depth, t_final, last, unclipped = _blend_save(
-            tile_start, tile_ids, params, boxes, w, h, bg)
-    finally:
-        numba.set_parallel_chunksize(previous)
-    saved = _Saved(gaussians, camera, bg, variances, opacities, order, params, boxes,
-                   tile_start, tile_ids, _pair_start(boxes, order, len(gaussians)), t_final, last, unclipped)
-    return RenderWithGrad(RenderOutput(image, alpha, depth), saved)
+    frame = _forward(gaussians, camera, bg, save=True)
+    saved = _Saved(gaussians, camera, bg, frame, _pair_start(frame.boxes, frame.order, len(gaussians)))
+    return RenderWithGrad(RenderOutput(frame.image, frame.alpha, frame.depth), saved)
 
 
 def _pair_start(boxes: np.ndarray, order: np.ndarray, n: int) -> np.ndarray:
@@ -321,131 +298,6 @@ def _group_masks(groups: object, n: int) -> list[np.ndarray] | None:
     return masks
 
 
-# --------------------------------------------------------------------------- forward with saved state
-
-@numba.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract"})
-def _blend_lanes_save(state, base, j0, nlanes, du, a2, b1, c0, xlo, xhi, opacity, red, green, blue, z,
-                      kf):
-    """``_blend_lanes`` plus a sixth plane: the position ``kf`` (float32) of the last Gaussian added.
-
-    The five planes of ``_blend_lanes`` are computed by the same expressions, so
-    the image is bit-identical.
-    """
-    f32 = np.float32
-    zero, one = f32(0.0), f32(1.0)
-    min_alpha, max_alpha, min_t = f32(1.0 / 255.0), f32(0.99), f32(1e-4)
-    p_r, p_g, p_b, p_z, p_k = (np.uint64(TILE * TILE), np.uint64(2 * TILE * TILE),
-                               np.uint64(3 * TILE * TILE), np.uint64(4 * TILE * TILE),
-                               np.uint64(5 * TILE * TILE))
-    stopped = 0
-    for jj in range(nlanes):
-        j = j0 + jj
-        lane = f32(j)
-        dx = lane + du
-        power = (a2 * dx + b1) * dx + c0
-        alpha = min(max_alpha, opacity * _exp_clamped(power))
-        i = base + np.uint64(j)
-        tr = state[i]
-        use = (lane >= xlo) & (lane <= xhi) & (tr > zero) & (power <= zero) & (alpha >= min_alpha)
-        test_t = tr * (one - alpha)
-        stop = use & (test_t < min_t)
-        add = use & (test_t >= min_t)
-        w = alpha * tr if add else zero
-        state[i + p_r] += w * red
-        state[i + p_g] += w * green
-        state[i + p_b] += w * blue
-        state[i + p_z] += w * z
-        state[i] = test_t if add else (-tr if stop else tr)
-        state[i + p_k] = kf if add else state[i + p_k]
-        stopped += stop
-    return stopped
-
-
-@numba.njit(parallel=True, cache=True, error_model="numpy", fastmath={"contract"})
-def _blend_save(tile_start, tile_ids, params, boxes, width, height, background):
-    """``_blend`` that also returns the per-pixel state of the backward pass.
-
-    Parameters
-    ----------
-    As ``_blend``.
-
-    Returns
-    -------
-    image (H, W, 3), alpha (H, W), depth (H, W) : float32
-        Bit-identical to ``_blend``.
-    t_final : (H, W) float32
-        Final transmittance ``T_N``.
-    last : (H, W) int32
-        Position in ``tile_ids`` of the last Gaussian added to the pixel (-1 if none).
-    unclipped : (H, W, 3) bool
-        The colour before clipping lies in [0, 1].
-    """
-    ntx = (width + TILE - 1) // TILE
-    ntiles = ntx * ((height + TILE - 1) // TILE)
-    image = np.empty((height, width, 3), np.float32)
-    alpha_out = np.empty((height, width), np.float32)
-    depth_out = np.empty((height, width), np.float32)
-    t_final = np.empty((height, width), np.float32)
-    last = np.empty((height, width), np.int32)
-    unclipped = np.empty((height, width, 3), np.bool_)
-    f32 = np.float32
-    zero, half, one = f32(0.0), f32(0.5), f32(1.0)
-    for t in numba.prange(ntiles):
-        xs, ys = (t % ntx) * TILE, (t // ntx) * TILE
-        tw, th = min(TILE, width - xs), min(TILE, height - ys)
-        start = tile_start[t]
-        state = np.zeros(6 * TILE * TILE, np.float32)
-        state[:TILE * TILE] = one
-        state[5 * TILE * TILE:] = f32(-1.0)
-        row_done = np.zeros(TILE, np.int64)
-        ndone = 0
-        for k in range(start, tile_start[t + 1]):
-            g = tile_ids[k]
-            bx0, bx1 = max(boxes[g, 0] - xs, 0), min(boxes[g, 1] - xs, tw - 1)
-            by0, by1 = max(boxes[g, 2] - ys, 0), min(boxes[g, 3] - ys, th - 1)
-            ca, cb, cc, v = params[g, _CA], params[g, _CB], params[g, _CC], params[g, _V]
-            opacity, z = params[g, _OPACITY], params[g, _Z]
-            red, green, blue = params[g, _R], params[g, _G], params[g, _B]
-            du = f32(xs) - params[g, _U]
-            xlo, xhi = f32(bx0), f32(bx1)
-            a2 = -half * ca
-            kf = f32(k - start)  # exact: a tile list is far shorter than 2^24
-            for ly in range(by0, by1 + 1):
-                if row_done[ly] == tw:
-                    continue
-                dy = f32(ys + ly) - v
-                b1 = -cb * dy
-                c0 = -half * cc * dy * dy
-                base = np.uint64(ly * TILE)
-                h0 = bx0 - bx0 % 8
-                if bx1 < h0 + 8:
-                    nd = _blend_lanes_save(state, base, h0, 8, du, a2, b1, c0, xlo, xhi, opacity,
-                                           red, green, blue, z, kf)
-                else:
-                    nd = _blend_lanes_save(state, base, 0, TILE, du, a2, b1, c0, xlo, xhi, opacity,
-                                           red, green, blue, z, kf)
-                row_done[ly] += nd
-                ndone += nd
-            if ndone == tw * th:
-                break
-        planes = state.reshape(6, TILE, TILE)
-        for ly in range(th):
-            for lx in range(tw):
-                tr = abs(planes[0, ly, lx])
-                y, x = ys + ly, xs + lx
-                for ch in range(3):
-                    raw = planes[1 + ch, ly, lx] + tr * background[ch]
-                    image[y, x, ch] = min(max(raw, zero), one)
-                    unclipped[y, x, ch] = (raw >= zero) & (raw <= one)
-                a = one - tr
-                alpha_out[y, x] = a
-                depth_out[y, x] = planes[4, ly, lx] / a if a > zero else zero
-                t_final[y, x] = tr
-                kl = planes[5, ly, lx]
-                last[y, x] = np.int32(start + np.int64(kl)) if kl >= zero else np.int32(-1)
-    return image, alpha_out, depth_out, t_final, last, unclipped
-
-
 # --------------------------------------------------------------------------- rasterize backward
 
 @numba.njit(cache=True, inline="always", error_model="numpy", fastmath={"contract"})
@@ -456,7 +308,8 @@ def _backward_lanes(state, accs, base, j0, nlanes, du, a2, b1, c0, xlo, xhi, opa
     Branch-free, so that it vectorises. ``state`` holds the tile's planes
     (each TILE × TILE float32): 0 ``T`` (transmittance after this Gaussian),
     1-3 ``S`` (colour behind it, background included), 4-6 ``∂L/∂C``, 7
-    ``∂L/∂A · T_N``, 8 the pixel's last position. All planes are addressed
+    ``∂L/∂A · T_N``, 8 the position of the Gaussian that stopped the pixel
+    (the list's length if none). All planes are addressed
     as ``base + lane + constant``, so LLVM proves them disjoint. ``accs``
     (9 · TILE,) float32, a separate array (one runtime alias check), sums
     this Gaussian's 9 gradients (``_GU`` ...) per lane over the rows.
@@ -478,7 +331,7 @@ def _backward_lanes(state, accs, base, j0, nlanes, du, a2, b1, c0, xlo, xhi, opa
         oe = opacity * e
         alpha = min(max_alpha, oe)
         i = base + np.uint64(j)
-        use = ((lane >= xlo) & (lane <= xhi) & (kf <= state[i + p8]) & (power <= zero)
+        use = ((lane >= xlo) & (lane <= xhi) & (kf < state[i + p8]) & (power <= zero)
                & (alpha >= min_alpha))
         ra = one / (one - alpha)
         t_after = state[i]
@@ -509,7 +362,7 @@ def _backward_lanes(state, accs, base, j0, nlanes, du, a2, b1, c0, xlo, xhi, opa
 
 @numba.njit(parallel=True, cache=True, error_model="numpy", fastmath={"contract"})
 def _blend_backward(tile_start, tile_ids, params, boxes, width, height, background,
-                    t_final, last, grad_rgb, grad_alpha, order, pair_start):
+                    t_final, stop, row_last, grad_rgb, grad_alpha, order, pair_start, pair):
     """Gradients of the loss with respect to every (Gaussian, tile) pair's 2D parameters.
 
     Parameters
@@ -518,36 +371,29 @@ def _blend_backward(tile_start, tile_ids, params, boxes, width, height, backgrou
         As for ``_blend``.
     width, height : int
     background : (3,) float32
-    t_final (H, W) float32, last (H, W) int32
-        From ``_blend_save``.
+    t_final (H, W) float32, stop (H, W) int32, row_last (n_tiles, TILE) int32
+        From ``_blend`` with ``save``.
     grad_rgb (H, W, 3) float32, grad_alpha (H, W) float32
         ``∂L/∂C`` (zero where the image was clipped) and ``∂L/∂A``.
     order (M,) int32, pair_start (N + 1,) int64
         Row → Gaussian, and each Gaussian's slots (``_pair_start``).
-
-    Returns
-    -------
-    pair : (P, 9) float32
-        The share of one tile's pixels in the gradients of one Gaussian (``u, v``,
-        conic ``a, b, c``, opacity, ``r, g, b``), in the Gaussian's slot for
-        that tile: each Gaussian's rows are contiguous and in tile order.
+    pair : (P, 9) float32, zeros
+        Filled here and returned: the share of one tile's pixels in the gradients
+        of one Gaussian (``u, v``, conic ``a, b, c``, opacity, ``r, g, b``), in
+        the Gaussian's slot for that tile; each Gaussian's rows are contiguous and
+        in tile order. Rows that stay zero (Gaussians behind stopped pixels, or
+        adding to none) are not written: NumPy's zeros are pages the OS zeroes
+        on first touch, far cheaper than scattered stores.
     """
     ntx = (width + TILE - 1) // TILE
     ntiles = ntx * ((height + TILE - 1) // TILE)
-    npairs = tile_ids.shape[0]
-    pair = np.empty((npairs, _NGRAD), np.float32)
     f32 = np.float32
-    half = f32(0.5)
     plane = TILE * TILE
     for t in numba.prange(ntiles):
-        xs, ys = (t % ntx) * TILE, (t // ntx) * TILE
-        tw, th = min(TILE, width - xs), min(TILE, height - ys)
+        xs, ys, tw, th = _tile_origin(t, ntx, width, height)
         start, end = tile_start[t], tile_start[t + 1]
         state = np.zeros(_NPLANE_BWD * plane, np.float32)
         accs = np.zeros(_NGRAD * TILE, np.float32)
-        state[8 * plane:9 * plane] = f32(-1.0)
-        row_last = np.full(TILE, -1, np.int64)
-        kmax = -1
         for ly in range(th):
             for lx in range(tw):
                 y, x = ys + ly, xs + lx
@@ -558,33 +404,25 @@ def _blend_backward(tile_start, tile_ids, params, boxes, width, height, backgrou
                     state[(1 + ch) * plane + p] = tn * background[ch]
                     state[(4 + ch) * plane + p] = grad_rgb[y, x, ch]
                 state[7 * plane + p] = grad_alpha[y, x] * tn
-                kl = np.int64(last[y, x]) - start if last[y, x] >= 0 else np.int64(-1)
-                state[8 * plane + p] = f32(kl)
-                row_last[ly] = max(row_last[ly], kl)
-                kmax = max(kmax, kl)
+                state[8 * plane + p] = f32((stop[y, x] if stop[y, x] >= 0 else end) - start)
+        kmax = -1
+        for ly in range(th):
+            kmax = max(kmax, row_last[t, ly] - start if row_last[t, ly] >= 0 else -1)
         ty, tx = t // ntx, t % ntx
-        for k in range(start + kmax + 1, end):
-            slot = _slot(pair_start, order, boxes, tile_ids[k], ty, tx)
-            for q in range(_NGRAD):
-                pair[slot, q] = f32(0.0)
         for kk in range(kmax, -1, -1):
             k = start + kk
             g = tile_ids[k]
-            bx0, bx1 = max(boxes[g, 0] - xs, 0), min(boxes[g, 1] - xs, tw - 1)
-            by0, by1 = max(boxes[g, 2] - ys, 0), min(boxes[g, 3] - ys, th - 1)
-            ca, cb, cc, v = params[g, _CA], params[g, _CB], params[g, _CC], params[g, _V]
+            bx0, bx1, by0, by1, du, xlo, xhi, a2 = _splat(params, boxes, g, xs, ys, tw, th)
+            ca, cb, cc = params[g, _CA], params[g, _CB], params[g, _CC]
             opacity = params[g, _OPACITY]
             red, green, blue = params[g, _R], params[g, _G], params[g, _B]
-            du = f32(xs) - params[g, _U]
-            xlo, xhi = f32(bx0), f32(bx1)
-            a2 = -half * ca
             kf = f32(kk)
+            ran = False
             for ly in range(by0, by1 + 1):
-                if row_last[ly] < kk:
+                if row_last[t, ly] < k:
                     continue
-                dy = f32(ys + ly) - v
-                b1 = -cb * dy
-                c0 = -half * cc * dy * dy
+                ran = True
+                dy, b1, c0 = _splat_row(params, g, ys, ly)
                 base = np.uint64(ly * TILE)
                 h0 = bx0 - bx0 % 8
                 if bx1 < h0 + 8:
@@ -593,11 +431,18 @@ def _blend_backward(tile_start, tile_ids, params, boxes, width, height, backgrou
                 else:
                     _backward_lanes(state, accs, base, 0, TILE, du, a2, b1, c0, xlo, xhi, opacity,
                                     red, green, blue, kf, ca, cb, cc, dy)
+            if not ran:
+                continue
             # The 16 lanes summed by a fixed pairwise tree (lanes not run hold zeros).
             _lane_tree(accs)
-            slot = _slot(pair_start, order, boxes, g, ty, tx)
+            nonzero = False
             for q in range(_NGRAD):
-                pair[slot, q] = accs[q * TILE]
+                nonzero |= accs[q * TILE] != f32(0.0)
+            if nonzero:  # a scattered write: only where the pair row is not all zeros already
+                slot = _slot(pair_start, order, boxes, g, ty, tx)
+                for q in range(_NGRAD):
+                    pair[slot, q] = accs[q * TILE]
+            for q in range(_NGRAD):
                 accs[q * TILE] = f32(0.0)
     return pair
 
@@ -713,11 +558,9 @@ def _project_backward(means, quats, variances, opacities, sh, view, K, campos, w
     """
     n = means.shape[0]
     nc = sh.shape[1]
-    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    lim_x0 = -(cx + 0.5) / fx - 0.15 * width / fx
-    lim_x1 = (width - 0.5 - cx) / fx + 0.15 * width / fx
-    lim_y0 = -(cy + 0.5) / fy - 0.15 * height / fy
-    lim_y1 = (height - 0.5 - cy) / fy + 0.15 * height / fy
+    fx, fy = K[0, 0], K[1, 1]
+    lims = _direction_limits(K, width, height)
+    lim_x0, lim_x1, lim_y0, lim_y1 = lims
     w00, w01, w02 = view[0, 0], view[0, 1], view[0, 2]
     w10, w11, w12 = view[1, 0], view[1, 1], view[1, 2]
     w20, w21, w22 = view[2, 0], view[2, 1], view[2, 2]
@@ -755,38 +598,20 @@ def _project_backward(means, quats, variances, opacities, sh, view, K, campos, w
         ty = w10 * mx + w11 * my + w12 * mz + view[1, 3]
         tz = w20 * mx + w21 * my + w22 * mz + view[2, 3]
         itz = 1.0 / tz
-        # Σ = R diag(var) Rᵀ from the normalised quaternion (as _world_covariance).
-        qw, qx, qy, qz = (np.float64(quats[i, 0]), np.float64(quats[i, 1]), np.float64(quats[i, 2]),
-                          np.float64(quats[i, 3]))
-        norm2 = qw * qw + qx * qx + qy * qy + qz * qz
-        qinv = 1.0 / math.sqrt(norm2) if norm2 > 0.0 else 0.0
-        qw, qx, qy, qz = qw * qinv, qx * qinv, qy * qinv, qz * qinv
-        r00, r01, r02 = 1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qw * qz), 2 * (qx * qz + qw * qy)
-        r10, r11, r12 = 2 * (qx * qy + qw * qz), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qw * qx)
-        r20, r21, r22 = 2 * (qx * qz - qw * qy), 2 * (qy * qz + qw * qx), 1 - 2 * (qx * qx + qy * qy)
+        # Σ = R diag(var) Rᵀ from the normalised quaternion, and T = J W: rows p, q.
+        (qw, qx, qy, qz), qinv, rows = _rotation(quats, i)
+        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = rows
         va, vb_, vc = np.float64(variances[i, 0]), np.float64(variances[i, 1]), np.float64(variances[i, 2])
-        s00 = r00 * r00 * va + r01 * r01 * vb_ + r02 * r02 * vc
-        s01 = r00 * r10 * va + r01 * r11 * vb_ + r02 * r12 * vc
-        s02 = r00 * r20 * va + r01 * r21 * vb_ + r02 * r22 * vc
-        s11 = r10 * r10 * va + r11 * r11 * vb_ + r12 * r12 * vc
-        s12 = r10 * r20 * va + r11 * r21 * vb_ + r12 * r22 * vc
-        s22 = r20 * r20 * va + r21 * r21 * vb_ + r22 * r22 * vc
-        # T = J W: rows p, q.
+        sigma = _world_covariance(rows, variances, i)
+        s00, s01, s02, s11, s12, s22 = sigma
         xz, yz = tx * itz, ty * itz
-        cxz, cyz = min(max(xz, lim_x0), lim_x1), min(max(yz, lim_y0), lim_y1)
+        (cxz, cyz), p, q, sp, sq, a, b, c_ = _screen_covariance(view, fx, fy, lims, xz, yz, itz, sigma)
+        p0, p1, p2 = p
+        q0, q1, q2 = q
+        sp0, sp1, sp2 = sp
+        sq0, sq1, sq2 = sq
         j00, j11 = fx * itz, fy * itz
         j02, j12 = -j00 * cxz, -j11 * cyz
-        p0, p1, p2 = j00 * w00 + j02 * w20, j00 * w01 + j02 * w21, j00 * w02 + j02 * w22
-        q0, q1, q2 = j11 * w10 + j12 * w20, j11 * w11 + j12 * w21, j11 * w12 + j12 * w22
-        sp0 = s00 * p0 + s01 * p1 + s02 * p2
-        sp1 = s01 * p0 + s11 * p1 + s12 * p2
-        sp2 = s02 * p0 + s12 * p1 + s22 * p2
-        sq0 = s00 * q0 + s01 * q1 + s02 * q2
-        sq1 = s01 * q0 + s11 * q1 + s12 * q2
-        sq2 = s02 * q0 + s12 * q1 + s22 * q2
-        a = p0 * sp0 + p1 * sp1 + p2 * sp2 + LOW_PASS
-        b = q0 * sp0 + q1 * sp1 + q2 * sp2
-        c_ = q0 * sq0 + q1 * sq1 + q2 * sq2 + LOW_PASS
         det = a * c_ - b * b
         id2 = 1.0 / (det * det)
         # Conic (c, -b, a) / det → Σ' entries a, b, c.

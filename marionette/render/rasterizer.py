@@ -23,7 +23,10 @@ projection of Zwicker et al., "EWA Volume Splatting" (2001), Eq. 31:
    ``T · background`` is added. ``_blend_lanes`` updates 8 or 16 pixels of a
    tile row without branches so that LLVM vectorises it; for that, ``exp`` is
    a polynomial (``_exp_clamped``, absolute error < 3e-7 on ``[-5.6, 0]``;
-   below -5.6, ``α < 1/255`` whatever the opacity).
+   below -5.6, ``α < 1/255`` whatever the opacity). With ``save`` (for
+   :func:`marionette.render.backward.render_with_grad`) the same kernel also
+   keeps the per-pixel state of the backward pass, outside the vectorised
+   lanes.
 
 Conventions (OpenCV, see :mod:`marionette.camera`): pixel ``(x, y)`` is
 evaluated at exactly ``(x, y)``, (0, 0) the centre of the top-left pixel, and a
@@ -152,6 +155,38 @@ def _rasterize(gaussians: Gaussians, camera: Camera, background: np.ndarray,
     ``lap(stage)``, if given, is called as each stage ends (the benchmark times
     them this way).
     """
+    frame = _forward(gaussians, camera, background, lap)
+    return frame.image, frame.alpha, frame.depth
+
+
+@dataclass(frozen=True)
+class _Frame:
+    """Everything one pass of the pipeline makes (M visible Gaussians, P tile pairs).
+
+    The last four are empty (0 × 0) unless asked for with ``save``: they are
+    what the backward pass (:mod:`marionette.render.backward`) needs per pixel.
+    """
+
+    variances: np.ndarray   # (N, 3) float32, from _activations
+    opacities: np.ndarray   # (N,) float32
+    order: np.ndarray       # (M,) int32, row in depth order → Gaussian
+    params: np.ndarray      # (M, 10) float32, front to back
+    boxes: np.ndarray       # (M, 4) int32
+    tile_start: np.ndarray  # (n_tiles + 1,) int64
+    tile_ids: np.ndarray    # (P,) int32
+    image: np.ndarray       # (H, W, 3) float32
+    alpha: np.ndarray       # (H, W) float32
+    depth: np.ndarray       # (H, W) float32
+    t_final: np.ndarray     # (H, W) float32 final transmittance
+    stop: np.ndarray        # (H, W) int32 tile-list position of the Gaussian that stopped the pixel, -1 if none
+    row_last: np.ndarray    # (n_tiles, TILE) int32 last list position that visited a tile row, -1 if none
+    unclipped: np.ndarray   # (H, W, 3) bool, the colour before clipping lies in [0, 1]
+
+
+def _forward(gaussians: Gaussians, camera: Camera, background: np.ndarray,
+             lap: Callable[[str], None] | None = None, save: bool = False) -> _Frame:
+    """:func:`_rasterize`, returning every intermediate table; ``save`` also keeps the
+    per-pixel state of the backward pass (see ``_blend``)."""
     lap = lap or (lambda stage: None)
     w, h = camera.width, camera.height
     variances, opacities, ellipse = _activations(gaussians.log_scales, gaussians.opacity_logits)
@@ -170,11 +205,11 @@ def _rasterize(gaussians: Gaussians, camera: Camera, background: np.ndarray,
     # Tiles differ widely in cost (object vs empty): hand them out one at a time.
     previous = numba.set_parallel_chunksize(1)
     try:
-        out = _blend(tile_start, tile_ids, params, boxes, w, h, background)
+        out = _blend(tile_start, tile_ids, params, boxes, w, h, background, True if save else None)
     finally:
         numba.set_parallel_chunksize(previous)
     lap("blend")
-    return out
+    return _Frame(variances, opacities, order, params, boxes, tile_start, tile_ids, *out)
 
 
 def _check_background(background: object) -> np.ndarray:
@@ -249,11 +284,7 @@ def _preprocess(means, quats, log_scales, opacity_logits, sh, variances, opaciti
     """
     n = means.shape[0]
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    # Clamp of x/z and y/z: 1.3× the half field of view, for any principal point.
-    lim_x0 = -(cx + 0.5) / fx - 0.15 * width / fx
-    lim_x1 = (width - 0.5 - cx) / fx + 0.15 * width / fx
-    lim_y0 = -(cy + 0.5) / fy - 0.15 * height / fy
-    lim_y1 = (height - 0.5 - cy) / fy + 0.15 * height / fy
+    lims = _direction_limits(K, width, height)
     w00, w01, w02, w03 = view[0, 0], view[0, 1], view[0, 2], view[0, 3]
     w10, w11, w12, w13 = view[1, 0], view[1, 1], view[1, 2], view[1, 3]
     w20, w21, w22, w23 = view[2, 0], view[2, 1], view[2, 2], view[2, 3]
@@ -273,22 +304,9 @@ def _preprocess(means, quats, log_scales, opacity_logits, sh, variances, opaciti
         ty = w10 * mx + w11 * my + w12 * mz + w13
         tz = w20 * mx + w21 * my + w22 * mz + w23
         itz = 1.0 / max(tz, NEAR)  # culled below the near plane; this only keeps values finite
-        s00, s01, s02, s11, s12, s22 = _world_covariance(quats, variances, i)
-        # T = J W (2x3): Jacobian rows at the clamped direction, times the view rotation.
+        sigma = _world_covariance(_rotation(quats, i)[2], variances, i)
         xz, yz = tx * itz, ty * itz
-        j00, j11 = fx * itz, fy * itz
-        j02 = -j00 * min(max(xz, lim_x0), lim_x1)
-        j12 = -j11 * min(max(yz, lim_y0), lim_y1)
-        p0, p1, p2 = j00 * w00 + j02 * w20, j00 * w01 + j02 * w21, j00 * w02 + j02 * w22
-        q0, q1, q2 = j11 * w10 + j12 * w20, j11 * w11 + j12 * w21, j11 * w12 + j12 * w22
-        # Σ' = T Σ Tᵀ + low-pass, with Σ symmetric.
-        sp0 = s00 * p0 + s01 * p1 + s02 * p2
-        sp1 = s01 * p0 + s11 * p1 + s12 * p2
-        sp2 = s02 * p0 + s12 * p1 + s22 * p2
-        a = p0 * sp0 + p1 * sp1 + p2 * sp2 + LOW_PASS
-        b = q0 * sp0 + q1 * sp1 + q2 * sp2
-        c = (q0 * (s00 * q0 + s01 * q1 + s02 * q2) + q1 * (s01 * q0 + s11 * q1 + s12 * q2)
-             + q2 * (s02 * q0 + s12 * q1 + s22 * q2)) + LOW_PASS
+        a, b, c = _screen_covariance(view, fx, fy, lims, xz, yz, itz, sigma)[-3:]
         det = a * c - b * b
         mid = 0.5 * (a + c)
         radius = math.ceil(3.0 * math.sqrt(mid + math.sqrt(max(0.1, mid * mid - det))))
@@ -327,22 +345,39 @@ def _preprocess(means, quats, log_scales, opacity_logits, sh, variances, opaciti
 
 
 @numba.njit(cache=True)
-def _world_covariance(quats, variances, i):
-    """Σ = R S Sᵀ Rᵀ of Gaussian ``i`` from quats (N, 4) ``w, x, y, z`` and variances (N, 3)
-    (``S²``) → its upper triangle ``(s00, s01, s02, s11, s12, s22)`` in float64.
+def _direction_limits(K, width, height):
+    """Clamp of ``x/z`` and ``y/z`` in the perspective Jacobian: 1.3× the half field of view, for
+    any principal point → ``(x0, x1, y0, y1)``."""
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    return (-(cx + 0.5) / fx - 0.15 * width / fx, (width - 0.5 - cx) / fx + 0.15 * width / fx,
+            -(cy + 0.5) / fy - 0.15 * height / fy, (height - 0.5 - cy) / fy + 0.15 * height / fy)
 
-    The quaternion is normalised here; a zero quaternion gives the identity, as
-    in the reference (its normalisation leaves zeros, which the matrix formula
-    turns into the identity).
+
+@numba.njit(cache=True)
+def _rotation(quats, i):
+    """Quaternion ``i`` of quats (N, 4) ``w, x, y, z``, normalised, in float64 → ``(w, x, y, z)``,
+    ``1 / |q|`` and the rotation matrix's rows ``(r00, r01, r02), (r10, ...), (r20, ...)``.
+
+    A zero quaternion gives the identity, as in the reference (its
+    normalisation leaves zeros, which the matrix formula turns into the
+    identity); ``1 / |q|`` is then 0.
     """
     w, x, y, z = (np.float64(quats[i, 0]), np.float64(quats[i, 1]), np.float64(quats[i, 2]),
                   np.float64(quats[i, 3]))
     norm2 = w * w + x * x + y * y + z * z
     inv = 1.0 / math.sqrt(norm2) if norm2 > 0.0 else 0.0
     w, x, y, z = w * inv, x * inv, y * inv, z * inv
-    r00, r01, r02 = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
-    r10, r11, r12 = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
-    r20, r21, r22 = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
+    return ((w, x, y, z), inv,
+            ((1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
+             (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
+             (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y))))
+
+
+@numba.njit(cache=True)
+def _world_covariance(rows, variances, i):
+    """Σ = R S Sᵀ Rᵀ of Gaussian ``i`` from the rows of its rotation ``R`` (:func:`_rotation`) and
+    variances (N, 3) (``S²``) → its upper triangle ``(s00, s01, s02, s11, s12, s22)`` in float64."""
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = rows
     v0, v1, v2 = np.float64(variances[i, 0]), np.float64(variances[i, 1]), np.float64(variances[i, 2])
     return (r00 * r00 * v0 + r01 * r01 * v1 + r02 * r02 * v2,
             r00 * r10 * v0 + r01 * r11 * v1 + r02 * r12 * v2,
@@ -350,6 +385,34 @@ def _world_covariance(quats, variances, i):
             r10 * r10 * v0 + r11 * r11 * v1 + r12 * r12 * v2,
             r10 * r20 * v0 + r11 * r21 * v1 + r12 * r22 * v2,
             r20 * r20 * v0 + r21 * r21 * v1 + r22 * r22 * v2)
+
+
+@numba.njit(cache=True)
+def _screen_covariance(view, fx, fy, lims, xz, yz, itz, sigma):
+    """EWA projection of a world covariance: ``Σ' = T Σ Tᵀ + low-pass``, ``T = J W`` (2 × 3), ``J``
+    the perspective Jacobian at the direction ``(xz, yz) = (t_x / t_z, t_y / t_z)`` clamped to
+    ``lims`` (:func:`_direction_limits`), ``itz = 1 / t_z``, ``sigma`` the upper triangle of ``Σ``.
+
+    Returns the clamped direction ``(cxz, cyz)``, the rows ``p``, ``q`` of ``T``, ``Σ p``,
+    ``Σ q`` and ``a, b, c``: ``Σ' = [[a, b], [b, c]]``, all float64.
+    """
+    s00, s01, s02, s11, s12, s22 = sigma
+    w00, w01, w02 = view[0, 0], view[0, 1], view[0, 2]
+    w10, w11, w12 = view[1, 0], view[1, 1], view[1, 2]
+    w20, w21, w22 = view[2, 0], view[2, 1], view[2, 2]
+    cxz, cyz = min(max(xz, lims[0]), lims[1]), min(max(yz, lims[2]), lims[3])
+    j00, j11 = fx * itz, fy * itz
+    j02, j12 = -j00 * cxz, -j11 * cyz
+    p = (j00 * w00 + j02 * w20, j00 * w01 + j02 * w21, j00 * w02 + j02 * w22)
+    q = (j11 * w10 + j12 * w20, j11 * w11 + j12 * w21, j11 * w12 + j12 * w22)
+    sp = (s00 * p[0] + s01 * p[1] + s02 * p[2], s01 * p[0] + s11 * p[1] + s12 * p[2],
+          s02 * p[0] + s12 * p[1] + s22 * p[2])
+    sq = (s00 * q[0] + s01 * q[1] + s02 * q[2], s01 * q[0] + s11 * q[1] + s12 * q[2],
+          s02 * q[0] + s12 * q[1] + s22 * q[2])
+    return ((cxz, cyz), p, q, sp, sq,
+            p[0] * sp[0] + p[1] * sp[1] + p[2] * sp[2] + LOW_PASS,
+            q[0] * sp[0] + q[1] * sp[1] + q[2] * sp[2],
+            q[0] * sq[0] + q[1] * sq[1] + q[2] * sq[2] + LOW_PASS)
 
 
 @numba.njit(parallel=True, cache=True)
@@ -476,10 +539,43 @@ def _blend_lanes(state, base, j0, nlanes, du, a2, b1, c0, xlo, xhi, opacity, red
     return stopped
 
 
+@numba.njit(cache=True, inline="always")
+def _tile_origin(t, ntx, width, height):
+    """Tile ``t`` (row-major, ``ntx`` per row) → its first pixel ``xs, ys`` and its size ``tw, th``."""
+    xs, ys = (t % ntx) * TILE, (t // ntx) * TILE
+    return xs, ys, min(TILE, width - xs), min(TILE, height - ys)
+
+
+@numba.njit(cache=True, inline="always")
+def _splat(params, boxes, g, xs, ys, tw, th):
+    """Row ``g`` of the Gaussian tables as one tile (first pixel ``xs, ys``, size ``tw × th``) sees it.
+
+    Returns ``bx0, bx1, by0, by1`` (the box in tile coordinates, inclusive),
+    ``du`` (``dx = lane + du``), ``xlo, xhi`` (``bx0, bx1`` as float32) and
+    ``a2 = -½ conic_a``, the terms of ``_blend_lanes`` that do not depend on the row.
+    """
+    f32 = np.float32
+    bx0, bx1 = max(boxes[g, 0] - xs, 0), min(boxes[g, 1] - xs, tw - 1)
+    by0, by1 = max(boxes[g, 2] - ys, 0), min(boxes[g, 3] - ys, th - 1)
+    du = f32(xs) - params[g, _U]
+    return bx0, bx1, by0, by1, du, f32(bx0), f32(bx1), -f32(0.5) * params[g, _CA]
+
+
+@numba.njit(cache=True, inline="always")
+def _splat_row(params, g, ys, ly):
+    """Tile row ``ly``'s terms of ``power = (a2 dx + b1) dx + c0`` for row ``g``: ``dy, b1, c0``.
+
+    ``power = -½ (a dx² + c dy²) - b dx dy`` with ``(a, b, c)`` the conic.
+    """
+    f32 = np.float32
+    dy = f32(ys + ly) - params[g, _V]
+    return dy, -params[g, _CB] * dy, -f32(0.5) * params[g, _CC] * dy * dy
+
+
 # ``contract`` only lets LLVM fuse a * b + c into one FMA (one rounding instead
 # of two); no other fast-math licence is taken.
 @numba.njit(parallel=True, cache=True, error_model="numpy", fastmath={"contract"})
-def _blend(tile_start, tile_ids, params, boxes, width, height, background):
+def _blend(tile_start, tile_ids, params, boxes, width, height, background, save):
     """Front-to-back compositing, parallel over tiles.
 
     A tile keeps its state in one flat float32 array of five 16×16 planes:
@@ -490,6 +586,15 @@ def _blend(tile_start, tile_ids, params, boxes, width, height, background):
     whose pixels have all stopped is skipped, and the tile ends when all its
     pixels have.
 
+    With ``save``, it also keeps what the backward pass needs, outside the
+    vectorised lanes so that the plain forward pays only a test per row: per
+    pixel the final transmittance, the colour's clip mask and the Gaussian that
+    stopped it (found, when ``_blend_lanes`` reports stops, as the pixels of the
+    row whose ``T`` turned negative), and per tile row the last Gaussian that
+    visited it while some of its pixels were live. Gaussian ``k`` of a tile's
+    list was added to a pixel exactly when it is before the pixel's stop and
+    passes the tests of ``_blend_lanes``, which the backward pass repeats.
+
     Parameters
     ----------
     tile_start : (n_tiles + 1,) int64; tile_ids : (P,) int32
@@ -498,43 +603,53 @@ def _blend(tile_start, tile_ids, params, boxes, width, height, background):
         The visible Gaussians' rows, front to back (``_gather``).
     width, height : int
     background : (3,) float32
+    save : True or None
+        None for the plain forward: numba prunes the branches on a None
+        argument, so that kernel holds none of the saving code.
 
     Returns
     -------
     image : (H, W, 3) float32; alpha : (H, W) float32; depth : (H, W) float32
+    t_final : (H, W) float32
+        Final transmittance ``T_N``.
+    stop : (H, W) int32
+        Position in ``tile_ids`` of the Gaussian that stopped the pixel (-1 if none).
+    row_last : (n_tiles, TILE) int32
+        Last position in ``tile_ids`` whose Gaussian visited the tile row while
+        it had live pixels (-1 if none).
+    unclipped : (H, W, 3) bool
+        The colour before clipping lies in [0, 1].
+
+    The last four are empty (0 × 0) unless ``save``.
     """
     ntx = (width + TILE - 1) // TILE
     ntiles = ntx * ((height + TILE - 1) // TILE)
     image = np.empty((height, width, 3), np.float32)
     alpha_out = np.empty((height, width), np.float32)
     depth_out = np.empty((height, width), np.float32)
+    sh, sw, st = (height, width, ntiles) if save is not None else (0, 0, 0)
+    t_final = np.empty((sh, sw), np.float32)
+    stop_out = np.empty((sh, sw), np.int32)
+    row_last = np.full((st, TILE), -1, np.int32)
+    unclipped = np.empty((sh, sw, 3), np.bool_)
     f32 = np.float32
-    zero, half, one = f32(0.0), f32(0.5), f32(1.0)
+    zero, one = f32(0.0), f32(1.0)
     for t in numba.prange(ntiles):
-        xs, ys = (t % ntx) * TILE, (t // ntx) * TILE
-        tw, th = min(TILE, width - xs), min(TILE, height - ys)
+        xs, ys, tw, th = _tile_origin(t, ntx, width, height)
         state = np.zeros(5 * TILE * TILE, np.float32)
         state[:TILE * TILE] = one
+        stop = np.full(TILE * TILE if save is not None else 0, -1, np.int32)
         row_done = np.zeros(TILE, np.int64)
         ndone = 0
         for k in range(tile_start[t], tile_start[t + 1]):
             g = tile_ids[k]
-            # Box in tile coordinates.
-            bx0, bx1 = max(boxes[g, 0] - xs, 0), min(boxes[g, 1] - xs, tw - 1)
-            by0, by1 = max(boxes[g, 2] - ys, 0), min(boxes[g, 3] - ys, th - 1)
-            ca, cb, cc, v = params[g, _CA], params[g, _CB], params[g, _CC], params[g, _V]
+            bx0, bx1, by0, by1, du, xlo, xhi, a2 = _splat(params, boxes, g, xs, ys, tw, th)
             opacity, z = params[g, _OPACITY], params[g, _Z]
             red, green, blue = params[g, _R], params[g, _G], params[g, _B]
-            du = f32(xs) - params[g, _U]  # dx = lane + du
-            xlo, xhi = f32(bx0), f32(bx1)
-            a2 = -half * ca
             for ly in range(by0, by1 + 1):
                 if row_done[ly] == tw:
                     continue
-                dy = f32(ys + ly) - v
-                # power = -½ (a dx² + c dy²) - b dx dy = (a2 dx + b1) dx + c0
-                b1 = -cb * dy
-                c0 = -half * cc * dy * dy
+                dy, b1, c0 = _splat_row(params, g, ys, ly)
                 base = np.uint64(ly * TILE)
                 # The 8 lanes of the aligned half holding the box, or all 16: fixed trip
                 # counts, which LLVM turns into one or two 8-wide vector iterations.
@@ -547,6 +662,13 @@ def _blend(tile_start, tile_ids, params, boxes, width, height, background):
                                       red, green, blue, z)
                 row_done[ly] += nd
                 ndone += nd
+                if save is not None:
+                    row_last[t, ly] = k
+                    if nd > 0:
+                        for lx in range(bx0, bx1 + 1):
+                            p = ly * TILE + lx
+                            if state[p] < zero and stop[p] < 0:
+                                stop[p] = k
             if ndone == tw * th:
                 break
         planes = state.reshape(5, TILE, TILE)
@@ -555,8 +677,14 @@ def _blend(tile_start, tile_ids, params, boxes, width, height, background):
                 tr = abs(planes[0, ly, lx])
                 y, x = ys + ly, xs + lx
                 for ch in range(3):
-                    image[y, x, ch] = min(max(planes[1 + ch, ly, lx] + tr * background[ch], zero), one)
+                    raw = planes[1 + ch, ly, lx] + tr * background[ch]
+                    image[y, x, ch] = min(max(raw, zero), one)
+                    if save is not None:
+                        unclipped[y, x, ch] = (raw >= zero) & (raw <= one)
                 a = one - tr
                 alpha_out[y, x] = a
                 depth_out[y, x] = planes[4, ly, lx] / a if a > zero else zero
-    return image, alpha_out, depth_out
+                if save is not None:
+                    t_final[y, x] = tr
+                    stop_out[y, x] = stop[ly * TILE + lx]
+    return image, alpha_out, depth_out, t_final, stop_out, row_last, unclipped
