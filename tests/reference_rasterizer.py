@@ -114,6 +114,24 @@ def project(gaussians: Gaussians, camera: Camera) -> dict[str, np.ndarray]:
     }
 
 
+def splat_footprint(mean2d: np.ndarray, radius: float, conic: np.ndarray, w: int,
+                    h: int) -> tuple[tuple[slice, slice], np.ndarray, np.ndarray, np.ndarray] | None:
+    """The pixels of a splat's square 3σ box clipped to the image, and ``-½ dᵀ Σ'^-1 d`` at each of them.
+
+    mean2d (2,) pixel centre, conic (2, 2); returns (box slices, dx, dy, power), each array
+    (h', w') with ``d = pixel - mean2d``, or None when the box misses the image.
+    """
+    (u, v), r = mean2d, radius
+    x0, x1 = max(int(np.ceil(u - r)), 0), min(int(np.floor(u + r)), w - 1)
+    y0, y1 = max(int(np.ceil(v - r)), 0), min(int(np.floor(v + r)), h - 1)
+    if x0 > x1 or y0 > y1:
+        return None
+    ys, xs = np.mgrid[y0:y1 + 1, x0:x1 + 1]
+    dx, dy = xs - u, ys - v
+    power = -0.5 * (conic[0, 0] * dx * dx + conic[1, 1] * dy * dy) - conic[0, 1] * dx * dy
+    return np.s_[y0:y1 + 1, x0:x1 + 1], dx, dy, power
+
+
 def render_reference(gaussians: Gaussians, camera: Camera,
                      background=(1.0, 1.0, 1.0)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Reference render → ``image (H, W, 3)``, ``alpha (H, W)``, ``depth (H, W)``, all float64.
@@ -127,17 +145,11 @@ def render_reference(gaussians: Gaussians, camera: Camera,
     zsum = np.zeros((h, w))
     done = np.zeros((h, w), bool)
     for i in range(len(proj["index"])):
-        (u, v), r = proj["mean2d"][i], proj["radius"][i]
-        x0, x1 = max(int(np.ceil(u - r)), 0), min(int(np.floor(u + r)), w - 1)
-        y0, y1 = max(int(np.ceil(v - r)), 0), min(int(np.floor(v + r)), h - 1)
-        if x0 > x1 or y0 > y1:
+        footprint = splat_footprint(proj["mean2d"][i], proj["radius"][i], proj["conic"][i], w, h)
+        if footprint is None:
             continue
-        ys, xs = np.mgrid[y0:y1 + 1, x0:x1 + 1]
-        dx, dy = xs - u, ys - v
-        con = proj["conic"][i]
-        power = -0.5 * (con[0, 0] * dx * dx + con[1, 1] * dy * dy) - con[0, 1] * dx * dy
+        box, _, _, power = footprint
         alpha = np.minimum(0.99, proj["opacity"][i] * np.exp(power))
-        box = np.s_[y0:y1 + 1, x0:x1 + 1]
         use = ~done[box] & (power <= 0) & (alpha >= 1.0 / 255.0)
         test_t = trans[box] * (1.0 - alpha)
         finish = use & (test_t < 1e-4)

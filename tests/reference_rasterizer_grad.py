@@ -39,6 +39,8 @@ from marionette.gaussians import Gaussians
 from marionette.geometry import axis_angle_to_matrix, matrix_to_quaternion, quaternion_multiply
 from marionette.render.sh import _basis
 
+from reference_rasterizer import splat_footprint
+
 NEAR = 0.2
 LOW_PASS = 0.3
 KEYS = ("means", "quats", "log_scales", "opacity_logits", "sh")
@@ -133,19 +135,13 @@ def render64(params: dict[str, np.ndarray], camera: Camera, background=(1.0, 1.0
     done = np.zeros((h, w), bool)
     steps = []
     for i in proj["order"]:
-        (u, v), r = proj["mean2d"][i], proj["radius"][i]
-        x0, x1 = max(int(np.ceil(u - r)), 0), min(int(np.floor(u + r)), w - 1)
-        y0, y1 = max(int(np.ceil(v - r)), 0), min(int(np.floor(v + r)), h - 1)
-        if x0 > x1 or y0 > y1:
+        footprint = splat_footprint(proj["mean2d"][i], proj["radius"][i], proj["conic"][i], w, h)
+        if footprint is None:
             continue
-        ys, xs = np.mgrid[y0:y1 + 1, x0:x1 + 1]
-        dx, dy = xs - u, ys - v
-        con = proj["conic"][i]
-        power = -0.5 * (con[0, 0] * dx * dx + con[1, 1] * dy * dy) - con[0, 1] * dx * dy
+        box, dx, dy, power = footprint
         e = np.exp(power)
         oe = proj["opacity"][i] * e
         alpha = np.minimum(0.99, oe)
-        box = np.s_[y0:y1 + 1, x0:x1 + 1]
         alive = ~done[box]
         use = alive & (power <= 0) & (alpha >= 1.0 / 255.0)
         test_t = trans[box] * (1.0 - alpha)
