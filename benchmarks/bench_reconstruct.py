@@ -54,7 +54,7 @@ def scene_prior(motion: str, frames: int, size: tuple[int, int]):
 def run_scene(motion: str, frames: int, size: tuple[int, int], sheet: bool) -> dict:
     """Reconstruct one scene; its figures (and the contact sheet when asked)."""
     from marionette.reconstruct import Reconstruction, reconstruct_object
-    from marionette.reconstruct import masked_psnr
+    from marionette.eval.metrics import masked_psnr
     from marionette.reconstruct._init import initial_gaussians
 
     scene, prior = scene_prior(motion, frames, size)

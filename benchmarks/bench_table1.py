@@ -97,7 +97,7 @@ def load_clip(name: str, out: Path) -> dict:
 
 def masked_psnrs(rendered, clip: dict, indices) -> list[float]:
     """Masked PSNR (object pixels only) of rendered frames against the clip's frames ``indices``."""
-    from marionette.reconstruct import masked_psnr
+    from marionette.eval.metrics import masked_psnr
 
     return [masked_psnr(r, clip["frames"][t], clip["masks"][t])
             for r, t in zip(rendered, indices) if clip["masks"][t].any()]

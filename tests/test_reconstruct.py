@@ -10,7 +10,8 @@ from marionette import cli
 from marionette.errors import InputError
 from marionette.gaussians import Gaussians
 from marionette.io import read_ply, read_ply_property, write_image, write_ply, write_prior
-from marionette.reconstruct import ReconstructOptions, Reconstruction, masked_psnr, reconstruct_object
+from marionette.eval.metrics import masked_psnr
+from marionette.reconstruct import ReconstructOptions, Reconstruction, reconstruct_object
 from marionette.reconstruct._init import initial_gaussians
 from marionette.synthetic import make_scene
 

@@ -14,7 +14,7 @@ from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
 from ..errors import InputError
 
-__all__ = ["on_white", "frame_metrics", "LPIPS_SKIPPED"]
+__all__ = ["on_white", "frame_metrics", "masked_psnr", "LPIPS_SKIPPED"]
 
 #: Why LPIPS is absent from the results (never replaced by a stand-in).
 LPIPS_SKIPPED = ("LPIPS network weights are not available locally (set MARIONETTE_LPIPS_WEIGHTS or "
@@ -58,3 +58,21 @@ def frame_metrics(reference: np.ndarray, rendered: np.ndarray) -> tuple[np.ndarr
         psnr[t] = PSNR_CAP if np.array_equal(a, b) else peak_signal_noise_ratio(a, b, data_range=255)
         ssim[t] = structural_similarity(a, b, channel_axis=2, data_range=255)
     return psnr, ssim
+
+
+def masked_psnr(rendered: np.ndarray, frame: np.ndarray, mask: np.ndarray) -> float:
+    """PSNR (dB) of a render on white against a frame masked onto white, over the object's pixels.
+
+    ``rendered`` (H, W, 3) float in [0, 1] or uint8, ``frame`` (H, W, 3)
+    uint8, ``mask`` (H, W) bool. The pixels scored are the mask's, so a
+    wrong colour on the object counts fully however small the object is in
+    the frame. Capped at 100 dB.
+    """
+    mask = np.asarray(mask, bool)
+    if not mask.any():
+        raise InputError("masked_psnr: the mask is empty")
+    a = np.asarray(rendered, np.float64)
+    a = a / 255.0 if np.asarray(rendered).dtype == np.uint8 else np.clip(a, 0, 1)
+    b = np.where(mask[..., None], frame, 255).astype(np.float64) / 255.0
+    mse = float(((a - b)[mask] ** 2).mean())
+    return 100.0 if mse <= 1e-10 else float(min(100.0, 10 * np.log10(1.0 / mse)))

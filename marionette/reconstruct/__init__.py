@@ -1,5 +1,5 @@
 """The source object reconstructed as 3D Gaussians from its video, masks and SpaT prior (issue 15 §2)."""
 
-from .fit import Reconstruction, ReconstructOptions, masked_psnr, reconstruct_object
+from .fit import Reconstruction, ReconstructOptions, reconstruct_object
 
-__all__ = ["reconstruct_object", "ReconstructOptions", "Reconstruction", "masked_psnr"]
+__all__ = ["reconstruct_object", "ReconstructOptions", "Reconstruction"]

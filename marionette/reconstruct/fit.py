@@ -35,7 +35,7 @@ from ..render.backward import render_with_grad
 from ._init import initial_gaussians, pose_gaussians
 from ._views import FitView, make_view
 
-__all__ = ["ReconstructOptions", "Reconstruction", "reconstruct_object", "masked_psnr"]
+__all__ = ["ReconstructOptions", "Reconstruction", "reconstruct_object"]
 
 
 @dataclass(frozen=True)
@@ -134,24 +134,6 @@ class Reconstruction:
             w, h = (int(v) for v in prior.image_size)
             camera = Camera(prior.intrinsics, np.eye(4), w, h)
         return render(self.at(prior, t), camera, (1.0, 1.0, 1.0)).image
-
-
-def masked_psnr(rendered: np.ndarray, frame: np.ndarray, mask: np.ndarray) -> float:
-    """PSNR (dB) of a render on white against a frame masked onto white, over the object's pixels.
-
-    ``rendered`` (H, W, 3) float in [0, 1] or uint8, ``frame`` (H, W, 3)
-    uint8, ``mask`` (H, W) bool. The pixels scored are the mask's, so a
-    wrong colour on the object counts fully however small the object is in
-    the frame. Capped at 100 dB.
-    """
-    mask = np.asarray(mask, bool)
-    if not mask.any():
-        raise InputError("masked_psnr: the mask is empty")
-    a = np.asarray(rendered, np.float64)
-    a = a / 255.0 if np.asarray(rendered).dtype == np.uint8 else np.clip(a, 0, 1)
-    b = np.where(mask[..., None], frame, 255).astype(np.float64) / 255.0
-    mse = float(((a - b)[mask] ** 2).mean())
-    return 100.0 if mse <= 1e-10 else float(min(100.0, 10 * np.log10(1.0 / mse)))
 
 
 def _check_inputs(frames, masks, prior: SpatPrior, frames_used: Sequence[int] | None) -> list[int]:
