@@ -17,6 +17,7 @@ __all__ = [
     "quaternion_multiply",
     "axis_angle_to_matrix",
     "matrix_to_axis_angle",
+    "so3_left_jacobian",
     "rotation_angle_deg",
     "make_transform",
     "invert_transform",
@@ -106,6 +107,23 @@ def axis_angle_to_matrix(v: np.ndarray) -> np.ndarray:
     safe = np.where(small, 1.0, theta)
     a = np.where(small, 1.0 - theta**2 / 6.0, np.sin(safe) / safe)
     b = np.where(small, 0.5 - theta**2 / 24.0, (1.0 - np.cos(safe)) / safe**2)
+    return np.eye(3) + a * k + b * (k @ k)
+
+
+def so3_left_jacobian(w: np.ndarray) -> np.ndarray:
+    """Left Jacobians (..., 3, 3) of the rotation exponential at rotation vectors w (..., 3).
+
+    exp(w + δ) ≈ exp(J δ) exp(w).
+    """
+    w = np.asarray(w, dtype=np.float64)
+    theta = np.linalg.norm(w, axis=-1)[..., None, None]
+    small = theta < 1e-6
+    theta = np.where(small, 1.0, theta)
+    a = np.where(small, 0.5, (1 - np.cos(theta)) / theta**2)
+    b = np.where(small, 1 / 6, (theta - np.sin(theta)) / theta**3)
+    k = np.zeros(w.shape[:-1] + (3, 3))
+    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -w[..., 2], w[..., 1], -w[..., 0]
+    k = k - np.swapaxes(k, -1, -2)
     return np.eye(3) + a * k + b * (k @ k)
 
 

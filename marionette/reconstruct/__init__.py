@@ -1,5 +1,7 @@
-"""The source object reconstructed as 3D Gaussians from its video, masks and SpaT prior (issue 15 §2)."""
+"""The source object reconstructed as 3D Gaussians from its video, masks and SpaT prior (issue 15 §2),
+and its poses refined photometrically against it (issue 16 §1, :mod:`.align`)."""
 
+from .align import AlignOptions, Alignment, align_poses
 from .fit import Reconstruction, ReconstructOptions, reconstruct_object
 
-__all__ = ["reconstruct_object", "ReconstructOptions", "Reconstruction"]
+__all__ = ["reconstruct_object", "ReconstructOptions", "Reconstruction", "align_poses", "AlignOptions", "Alignment"]

@@ -63,7 +63,8 @@ from scipy import sparse
 from scipy.optimize import least_squares
 from scipy.spatial import cKDTree
 
-from ..geometry import axis_angle_to_matrix, invert_transform, make_transform, se3_interpolate, transform_points
+from ..geometry import (axis_angle_to_matrix, invert_transform, make_transform, se3_interpolate, so3_left_jacobian,
+                        transform_points)
 from .tracks import Tracks
 
 __all__ = ["ShapePrior", "RigidOptions", "RigidFit", "fit_rigid", "carved_centroid"]
@@ -444,20 +445,6 @@ def _huber_weights(norms: np.ndarray, scale: float) -> tuple[np.ndarray, float]:
     return np.where(big, scale / np.maximum(norms, 1e-300), 1.0), float(cost)
 
 
-def _left_jacobian(w: np.ndarray) -> np.ndarray:
-    """Left Jacobians (F, 3, 3) of the rotation exponential at rotation vectors w (F, 3).
-
-    exp(w + δ) ≈ exp(J δ) exp(w).
-    """
-    theta = np.linalg.norm(w, axis=1)[:, None, None]
-    small = theta < 1e-6
-    theta = np.where(small, 1.0, theta)
-    a = np.where(small, 0.5, (1 - np.cos(theta)) / theta**2)
-    b = np.where(small, 1 / 6, (theta - np.sin(theta)) / theta**3)
-    skew = _skew(w)
-    return np.eye(3) + a * skew + b * skew @ skew
-
-
 def _huber_irls(z: np.ndarray) -> np.ndarray:
     """Huber loss for ``least_squares``: ρ, ρ′ and ρ″ (3, m) of squared scaled residuals z (m,).
 
@@ -539,7 +526,7 @@ def _bundle_adjust(observed: np.ndarray, uv: np.ndarray, k: np.ndarray, poses: n
         j_proj[:, :, 2] = -fxy * cam[:, :2] / z[:, None] ** 2
         j_proj_moving = j_proj[moving]
         # d(exp(ω) R₀ X)/dω = -[R X]ₓ J_l(ω).
-        j_rot = -j_proj_moving @ _skew(rx[moving]) @ _left_jacobian(omega)[obs_slot]
+        j_rot = -j_proj_moving @ _skew(rx[moving]) @ so3_left_jacobian(omega)[obs_slot]
         values = np.concatenate([
             np.concatenate([j_rot, j_proj_moving], axis=2).ravel(),
             (j_proj @ rot[obs_t]).ravel(),

@@ -1,0 +1,180 @@
+"""Photometric pose refinement (marionette.reconstruct.align) on frames rendered from a known model.
+
+The frames are rendered from the very Gaussians the aligner is given, so the
+true poses are the loss's minimum and a perturbed pose must come back to them.
+"""
+
+import numpy as np
+import pytest
+
+from marionette.camera import Camera
+from marionette.errors import InputError
+from marionette.gaussians import Gaussians
+from marionette.geometry import axis_angle_to_matrix, invert_transform, make_transform, rotation_angle_deg
+from marionette.reconstruct._init import pose_gaussians
+from marionette.reconstruct._views import make_view
+from marionette.reconstruct.align import AlignOptions, align_poses, move_parts, twist_loss
+from marionette.render import render
+
+W, H = 192, 160
+K = np.array([[190.0, 0, W / 2], [0, 190.0, H / 2], [0, 0, 1]])
+
+
+def _box_surface(rng, n: int, half: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """n points (n, 3) on the faces of a box with half-sizes ``half`` (3,) around ``centre``."""
+    pts = rng.uniform(-1, 1, size=(n, 3)) * half
+    face = rng.integers(0, 3, n)
+    pts[np.arange(n), face] = np.sign(rng.uniform(-1, 1, n)) * half[face]
+    return pts + centre
+
+
+def textured_object(seed: int = 0, two_parts: bool = False) -> tuple[Gaussians, np.ndarray]:
+    """A textured box (and a lid on it) 5 units in front of the camera: Gaussians (N) and their parts (N,).
+
+    Small (0.7 px) opaque Gaussians: the silhouette is sharp, as in a model fitted to binary masks.
+    """
+    rng = np.random.default_rng(seed)
+    body = _box_surface(rng, 2500, np.array([0.9, 0.5, 0.6]), np.array([0.0, 0.2, 5.0]))
+    means, parts = body, np.zeros(len(body), np.int32)
+    if two_parts:
+        lid = _box_surface(rng, 1000, np.array([0.9, 0.08, 0.6]), np.array([0.0, -0.42, 5.0]))
+        means, parts = np.concatenate([body, lid]), np.concatenate([parts, np.ones(len(lid), np.int32)])
+    n = len(means)
+    colours = rng.uniform(-0.45, 0.45, size=(n, 1, 3))  # SH DC: a random texture
+    quats = rng.normal(size=(n, 4))
+    return Gaussians(means.astype(np.float32), (quats / np.linalg.norm(quats, axis=1, keepdims=True)).astype(np.float32),
+                     np.full((n, 3), np.log(0.035), np.float32), np.full(n, 4.0, np.float32),
+                     colours.astype(np.float32)), parts
+
+
+def frame_of(gaussians, parts, poses) -> tuple[np.ndarray, np.ndarray]:
+    """The object moved by poses (K, 4, 4) rendered on white: a uint8 frame (H, W, 3) and its mask (H, W)."""
+    out = render(pose_gaussians(gaussians, parts, poses), Camera(K, np.eye(4), W, H), (1.0, 1.0, 1.0))
+    return np.round(out.image * 255).astype(np.uint8), out.alpha > 0.5
+
+
+def turn(axis, degrees: float, shift=(0.0, 0.0, 0.0), about=(0.0, 0.2, 5.0)) -> np.ndarray:
+    """A 4x4 rotation by ``degrees`` about ``axis`` through the point ``about``, then a shift."""
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    rot = axis_angle_to_matrix(np.radians(degrees) * axis)
+    about = np.asarray(about)
+    return make_transform(rot, about - rot @ about + np.asarray(shift))
+
+
+def errors(estimate: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
+    """Rotation (degrees) and translation differences of two poses (4, 4)."""
+    diff = invert_transform(truth) @ estimate
+    return float(rotation_angle_deg(diff[:3, :3])), float(np.linalg.norm(estimate[:3, 3] - truth[:3, 3]))
+
+
+def align_one(gaussians, parts, truth: np.ndarray, start: np.ndarray, frame=None, mask=None, **kw):
+    """Align frame 1 (rendered at ``truth`` (K, 4, 4) unless given) from ``start`` (K, 4, 4)."""
+    if frame is None:
+        frame, mask = frame_of(gaussians, parts, truth)
+    k = len(truth)
+    frames = np.stack([frame_of(gaussians, parts, np.tile(np.eye(4), (k, 1, 1)))[0], frame])
+    masks = np.stack([np.ones((H, W), bool), mask])
+    poses = np.stack([np.tile(np.eye(4), (k, 1, 1)), start], axis=1)  # (K, 2, 4, 4)
+    return align_poses(gaussians, parts, frames, masks, K, poses, options=AlignOptions(max_side=W), **kw)
+
+
+def test_a_perturbed_pose_comes_back():
+    g, parts = textured_object()
+    truth = turn([0.3, 1, 0.2], 25)[None]
+    start = turn([1, -0.5, 0.3], 3, shift=(0.04, -0.03, 0.05)) @ truth
+    assert errors(start[0], truth[0])[0] > 2.9
+    result = align_one(g, parts, truth, start)
+    rot, trans = errors(result.poses[0, 1], truth[0])
+    assert rot < 0.05 and trans < 0.005
+    assert result.loss_after[1] < 0.2 * result.loss_before[1]
+    assert result.frames == [1] and np.array_equal(result.poses[:, 0], np.eye(4)[None])
+
+
+@pytest.mark.xfail(strict=True, reason="known: the two-part box settles 0.28° (body) / 0.17° (lid) off even from the "
+                   "true poses, with a lower loss there: the silhouette term's bias (session note of 2026-12-01)")
+def test_each_part_comes_back_and_a_fixed_part_stays():
+    g, parts = textured_object(two_parts=True)
+    truth = np.stack([turn([0, 1, 0], 10), turn([1, 0, 0], -20, about=(0.0, -0.35, 4.4))])
+    start = np.stack([turn([0, 0, 1], 2) @ truth[0], turn([1, 0.2, 0], 5, shift=(0.0, 0.03, 0.0)) @ truth[1]])
+    result = align_one(g, parts, truth, start)
+    for k in range(2):
+        assert errors(result.poses[k, 1], truth[k])[0] < 0.05
+    # The body held fixed: it keeps its (wrong) pose, and the lid still finds its own.
+    held = align_one(g, parts, truth, start, movable=np.array([False, True]))
+    np.testing.assert_array_equal(held.poses[0, 1], start[0])
+    assert errors(held.poses[1, 1], truth[1])[0] < 1.0
+
+
+def test_a_half_visible_object_still_aligns():
+    g, parts = textured_object()
+    truth = make_transform(np.eye(3), [0.0, 0.0, 0.0]) @ turn([0, 1, 0.3], 15, shift=(2.4, 0.0, 0.0))
+    frame, mask = frame_of(g, parts, truth[None])
+    assert mask[:, -1].any() and 0.2 < mask.sum() / frame_of(g, parts, turn([0, 1, 0.3], 15)[None])[1].sum() < 0.7
+    start = turn([0.2, 1, 0], 3, shift=(-0.05, 0.03, 0.0)) @ truth
+    result = align_one(g, parts, truth[None], start[None], frame, mask)
+    assert errors(result.poses[0, 1], truth)[0] < 0.1
+
+
+@pytest.mark.xfail(strict=True, reason="known: an occluder cut out of the mask (a quarter of the box) drags the "
+                   "pose 23° through the squared silhouette term (session note of 2026-12-01)")
+def test_an_occluder_does_not_drag_the_pose():
+    g, parts = textured_object()
+    truth = turn([0.3, 1, 0.2], 25)
+    frame, mask = frame_of(g, parts, truth[None])
+    ys, xs = np.nonzero(mask)
+    x0, y0 = int(np.percentile(xs, 60)), int(np.percentile(ys, 40))
+    frame[y0:, x0:] = (90, 60, 50)  # a hand over a corner; the segmentation leaves it out
+    mask[y0:, x0:] = False
+    assert mask.sum() > 0.7 * (frame_of(g, parts, truth[None])[1]).sum()
+    start = turn([1, 0.4, 0], 3, shift=(0.03, 0.0, 0.0)) @ truth
+    result = align_one(g, parts, truth[None], start[None], frame, mask)
+    assert errors(result.poses[0, 1], truth)[0] < 0.3
+
+
+def test_already_aligned_poses_stay():
+    g, parts = textured_object()
+    truth = turn([0.3, 1, 0.2], 25)[None]
+    result = align_one(g, parts, truth, truth)
+    assert errors(result.poses[0, 1], truth[0])[0] < 0.05
+    assert result.loss_after[1] <= result.loss_before[1]
+
+
+@pytest.mark.xfail(strict=True, reason="open: the twist gradient differs from central differences by 12% here "
+                   "(the rasterizer's own pose gradient matches to 1e-4); float32 rounding or a chain-rule error, "
+                   "not yet traced (session note of 2026-12-01)")
+def test_twist_gradient_matches_finite_differences():
+    # Few large, faint Gaussians: below 1/255 at their 3σ box edge, and no depth-order swap within the steps.
+    g, parts = textured_object(two_parts=True)
+    pick = np.r_[np.arange(0, 2500, 100), np.arange(2500, 3500, 100)]
+    g = Gaussians(g.means[pick], g.quats[pick], np.full((len(pick), 3), np.log(0.2), np.float32),
+                  np.full(len(pick), -2.0, np.float32), g.sh[pick])
+    parts = parts[pick]
+    poses = np.stack([turn([0, 1, 0], 10), turn([1, 0, 0], -20, about=(0.0, -0.35, 4.4))])
+    frame, mask = frame_of(g, parts, poses)
+    view = make_view(1, frame, np.ones_like(mask), K, 1.0)  # the whole image: faint Gaussians leave no mask
+    centres = np.array([[0.0, 0.2, 5.0], [0.0, -0.4, 5.0]])
+    x = np.array([[0.02, -0.03, 0.01, 0.02, 0.01, -0.02], [0.05, 0.02, -0.04, -0.01, 0.03, 0.02]])
+    options = AlignOptions()
+    _, grad = twist_loss(g, parts, poses, x, centres, 1.0, view, options)
+    fd = np.zeros_like(x)
+    for k in range(2):
+        for i in range(6):
+            step = np.zeros_like(x)
+            step[k, i] = 1e-3  # the render is float32: smaller steps drown in its rounding
+            fd[k, i] = (twist_loss(g, parts, poses, x + step, centres, 1.0, view, options)[0]
+                        - twist_loss(g, parts, poses, x - step, centres, 1.0, view, options)[0]) / 2e-3
+    assert np.linalg.norm(grad - fd) < 0.05 * np.linalg.norm(fd)
+    # move_parts with a zero twist is the identity and its twists compose as documented.
+    np.testing.assert_allclose(move_parts(poses, np.zeros((2, 6)), centres, 1.0), poses)
+
+
+def test_bad_inputs_raise():
+    g, parts = textured_object()
+    frames = np.zeros((2, H, W, 3), np.uint8)
+    masks = np.ones((2, H, W), bool)
+    with pytest.raises(InputError):
+        align_poses(g, parts, frames, masks, K, np.tile(np.eye(4), (1, 3, 1, 1))[..., :3, :])
+    with pytest.raises(InputError):
+        align_poses(g, parts + 1, frames, masks, K, np.tile(np.eye(4), (1, 2, 1, 1)))
+    with pytest.raises(InputError):
+        align_poses(g, parts, frames, masks, K, np.tile(np.eye(4), (1, 2, 1, 1)), options=AlignOptions(levels=0))
