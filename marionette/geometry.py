@@ -124,7 +124,8 @@ def so3_left_jacobian(w: np.ndarray) -> np.ndarray:
     k = np.zeros(w.shape[:-1] + (3, 3))
     k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -w[..., 2], w[..., 1], -w[..., 0]
     k = k - np.swapaxes(k, -1, -2)
-    return np.eye(3) + a * k + b * (k @ k)
+    # (b k) k, not b (k k): the bundle adjustment's poses, and with them the hinge's part count, follow its last bits.
+    return np.eye(3) + a * k + b * k @ k
 
 
 def matrix_to_axis_angle(m: np.ndarray) -> np.ndarray:

@@ -41,7 +41,8 @@ from ..render.backward import render_with_grad
 from ._init import pose_gaussians
 from ._views import FitView, make_view
 
-__all__ = ["AlignOptions", "Alignment", "align_poses", "align_frame", "frame_loss", "move_parts", "twist_loss"]
+__all__ = ["AlignOptions", "Alignment", "align_poses", "align_frame", "frame_loss", "move_parts", "twist_loss",
+           "twist_gradient"]
 
 
 @dataclass(frozen=True)
@@ -153,11 +154,17 @@ def twist_loss(gaussians: Gaussians, parts: np.ndarray, poses: np.ndarray, x: np
     """Loss of one view with poses (K, 4, 4) moved by twists x (K, 6) (:func:`move_parts`), and its gradient (K, 6)."""
     loss, g = frame_loss(gaussians, parts, move_parts(poses, x, centres, radius), view, options,
                          pivots=centres + x[:, 3:] * radius)
+    return loss, twist_gradient(g, x, radius)
+
+
+def twist_gradient(g: np.ndarray, x: np.ndarray, radius: float) -> np.ndarray:
+    """Gradient (K, 6) with respect to the twists x (K, 6) of :func:`move_parts`, from the gradient g (K, 6)
+    with respect to a left-multiplied twist ``[ω, v]`` about the moved centres ``c + v``."""
     grad = np.empty_like(g)
     # exp(ω + δ) ≈ exp(J_l(ω) δ) exp(ω): the left-perturbation gradient times J_l.
     grad[:, :3] = np.einsum("kji,kj->ki", so3_left_jacobian(x[:, :3]), g[:, :3])
     grad[:, 3:] = g[:, 3:] * radius
-    return loss, grad
+    return grad
 
 
 def align_frame(gaussians: Gaussians, parts: np.ndarray, poses: np.ndarray, pyramid: Sequence[FitView],
