@@ -5,15 +5,17 @@ by the current per-part poses of frame ``t``, rendered on white in that
 frame's (cropped, downscaled) camera and compared with the frame composited
 on white by its mask::
 
-    L(ξ) = mean ρ(Î - I) + λ_mask mean (A - M)²,   ρ(r) = √(r² + ε²) - ε
+    L(ξ) = mean_M ρ(Î - I) + λ_mask mean σ(A - M),   ρ(r) = √(r² + ε²) - ε,   σ(r) = c² log(1 + r²/c²)
 
-on the colours Î, I (not on the mask's one-pixel edge band, where the
-object blends with a background the model does not hold) and the alpha A
-against the mask coverage M. ρ is the Charbonnier loss (a smooth L1): a hand
-over the object or motion blur costs at most linearly, so it does not drag
-the pose. The silhouette term widens the basin (the hinge lid comes back
-from 50° off), but a binary mask against a render's soft edges biases the
-answer, so it is weighted low. Each part ``k``
+The colour term ρ (Charbonnier, a smooth L1) is taken inside the mask only,
+off its one-pixel edge band: edge pixels blend the object with a background
+the model does not hold, and outside the mask a render's colour says nothing
+the silhouette term does not (and a hand cut out of the mask would pull the
+pose through it). The silhouette term compares the alpha A with the mask
+coverage M; it widens the basin (the hinge lid comes back from 50° off). It
+is squared on every level, then the finest level is fitted again with the
+Cauchy loss σ: an occluder cut out of the mask costs little there, and the
+soft edges of a render against a binary mask bias it less. Each part ``k``
 gets a twist ``ξ_k = [ω_k, v_k / r]`` (``r`` the object radius, so both
 halves are of order one) that turns it about its centre ``c_k`` and moves
 it: ``μ' = exp(ω) (P μ - c) + c + v``. The gradient comes from
@@ -60,14 +62,16 @@ class AlignOptions:
     iterations : int
         L-BFGS iterations per level.
     mask_weight : float
-        ``λ_mask`` of the silhouette term: at 1 a 100-pixel box settles 0.06°
-        off its true pose, at 0.3 0.04°.
+        ``λ_mask`` of the silhouette term.
     charbonnier : float
         ``ε`` of the Charbonnier loss, in [0, 1] colour units:
         residuals well above it count linearly.
     max_step : float
         Bound on each twist component per level: radians of rotation, and
         object radii of translation.
+    silhouette_scale : float
+        ``c`` of the finest level's robust silhouette pass (alpha units);
+        ``inf`` skips that pass.
     """
 
     max_side: int = 240
@@ -76,6 +80,7 @@ class AlignOptions:
     mask_weight: float = 0.3
     charbonnier: float = 0.03
     max_step: float = 0.5
+    silhouette_scale: float = 0.25
 
     def check(self) -> None:
         """Raise :class:`InputError` naming the first setting out of range."""
@@ -83,8 +88,9 @@ class AlignOptions:
             raise InputError(f"align max_side must be within 16..8192, got {self.max_side}")
         if not 1 <= self.levels <= 6 or not 1 <= self.iterations <= 10_000:
             raise InputError("align levels must be within 1..6 and iterations within 1..10000")
-        if self.mask_weight < 0 or not self.charbonnier > 0 or not self.max_step > 0:
-            raise InputError("align mask_weight must be >= 0, charbonnier and max_step > 0")
+        if self.mask_weight < 0 or not self.charbonnier > 0 or not self.max_step > 0 \
+                or not self.silhouette_scale > 0:
+            raise InputError("align mask_weight must be >= 0, charbonnier, max_step and silhouette_scale > 0")
 
 
 @dataclass(frozen=True)
@@ -116,24 +122,32 @@ def move_parts(poses: np.ndarray, x: np.ndarray, centres: np.ndarray, radius: fl
 
 
 def _interior(cover: np.ndarray) -> np.ndarray:
-    """(H, W) float32 weights of the colour term: 0 on the mask's edge band (one pixel either side), else 1.
+    """(H, W) float32 weights of the colour term: 1 inside the mask, off its one-pixel edge band, else 0.
 
     Edge pixels mix the object with a background the model does not hold, and
-    a binary mask cuts them at an arbitrary level; they are left to the
-    silhouette term, or their colour would pull the pose by a tenth of a degree.
+    a binary mask cuts them at an arbitrary level; left in, their colour pulled
+    a test box's pose by a tenth of a degree.
     """
     inside = (cover > 0.5).astype(np.uint8)
     kernel = np.ones((3, 3), np.uint8)
-    band = cv2.dilate(inside, kernel) != cv2.erode(inside, kernel)
-    return np.where(band, 0.0, 1.0).astype(np.float32)
+    return cv2.erode(inside, kernel).astype(np.float32)
+
+
+def _silhouette(a_res: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """Cauchy cost ``c² log(1 + r²/c²)`` of alpha residuals r (H, W) and its derivative; squared for c = inf."""
+    if not np.isfinite(scale):
+        return a_res * a_res, 2 * a_res
+    c2 = scale * scale
+    return c2 * np.log1p(a_res * a_res / c2), 2 * a_res / (1 + a_res * a_res / c2)
 
 
 def frame_loss(gaussians: Gaussians, parts: np.ndarray, poses: np.ndarray, view: FitView, options: AlignOptions,
-               pivots: np.ndarray | None = None) -> tuple[float, np.ndarray | None]:
+               pivots: np.ndarray | None = None, scale: float = np.inf) -> tuple[float, np.ndarray | None]:
     """Loss of one view with the Gaussians (N, parts (N,)) moved by poses (K, 4, 4).
 
     With ``pivots`` (K, 3), also the gradient (K, 6) with respect to a
-    left-multiplied twist ``[ω, v]`` of each part about its pivot.
+    left-multiplied twist ``[ω, v]`` of each part about its pivot. ``scale``:
+    ``c`` of the Cauchy silhouette term (``inf``: squared).
     """
     posed = pose_gaussians(gaussians, parts, poses)
     out = render_with_grad(posed, view.camera, (1.0, 1.0, 1.0))
@@ -141,19 +155,22 @@ def frame_loss(gaussians: Gaussians, parts: np.ndarray, poses: np.ndarray, view:
     a_res = out.output.alpha - view.mask  # (H, W)
     eps = options.charbonnier
     root = np.sqrt(res * res + eps * eps)
-    loss = float((root - eps).mean() + options.mask_weight * (a_res * a_res).mean())
+    cost, slope = _silhouette(a_res, scale)
+    loss = float((root - eps).mean() + options.mask_weight * cost.mean())
     if pivots is None:
         return loss, None
-    grads = out.backward(res / root / res.size, (2 * options.mask_weight / a_res.size) * a_res,
+    grads = out.backward(res / root / res.size, (options.mask_weight / a_res.size) * slope,
                          groups=[parts == k for k in range(len(poses))], pivot=pivots)
     return loss, grads.pose
 
 
 def twist_loss(gaussians: Gaussians, parts: np.ndarray, poses: np.ndarray, x: np.ndarray, centres: np.ndarray,
-               radius: float, view: FitView, options: AlignOptions) -> tuple[float, np.ndarray]:
-    """Loss of one view with poses (K, 4, 4) moved by twists x (K, 6) (:func:`move_parts`), and its gradient (K, 6)."""
+               radius: float, view: FitView, options: AlignOptions,
+               scale: float = np.inf) -> tuple[float, np.ndarray]:
+    """Loss of one view with poses (K, 4, 4) moved by twists x (K, 6) (:func:`move_parts`), and its gradient (K, 6);
+    ``scale``: the silhouette term's (see :func:`frame_loss`)."""
     loss, g = frame_loss(gaussians, parts, move_parts(poses, x, centres, radius), view, options,
-                         pivots=centres + x[:, 3:] * radius)
+                         pivots=centres + x[:, 3:] * radius, scale=scale)
     return loss, twist_gradient(g, x, radius)
 
 
@@ -185,16 +202,21 @@ def align_frame(gaussians: Gaussians, parts: np.ndarray, poses: np.ndarray, pyra
         if len(mine):
             centres[k] = poses[k, :3, :3] @ mine.mean(axis=0) + poses[k, :3, 3]
     free = np.flatnonzero(movable)
-    before = frame_loss(gaussians, parts, poses, pyramid[-1], options)[0]
+    fine = options.silhouette_scale
+    before = frame_loss(gaussians, parts, poses, pyramid[-1], options, scale=fine)[0]
     if not len(free):
         return poses, before, before
-    for view in pyramid:
+    # Every level with the squared silhouette (a wide basin), then the finest again with the robust one
+    # (occluders, accuracy).
+    stages = [(view, np.inf) for view in pyramid] + ([(pyramid[-1], fine)] if np.isfinite(fine) else [])
+    for view, scale in stages:
         best = {"loss": np.inf, "x": np.zeros(6 * len(free))}
 
-        def objective(flat: np.ndarray, view: FitView = view, best: dict = best) -> tuple[float, np.ndarray]:
+        def objective(flat: np.ndarray, view: FitView = view, best: dict = best,
+                      scale: float = scale) -> tuple[float, np.ndarray]:
             x = np.zeros((k_count, 6))
             x[free] = flat.reshape(-1, 6)
-            loss, grad = twist_loss(gaussians, parts, poses, x, centres, radius, view, options)
+            loss, grad = twist_loss(gaussians, parts, poses, x, centres, radius, view, options, scale)
             if loss < best["loss"]:
                 best.update(loss=loss, x=flat.copy())
             return loss, grad[free].ravel()
@@ -208,7 +230,7 @@ def align_frame(gaussians: Gaussians, parts: np.ndarray, poses: np.ndarray, pyra
         x[free] = best["x"].reshape(-1, 6)
         poses = move_parts(poses, x, centres, radius)
         centres = centres + x[:, 3:] * radius
-    after = frame_loss(gaussians, parts, poses, pyramid[-1], options)[0]
+    after = frame_loss(gaussians, parts, poses, pyramid[-1], options, scale=fine)[0]
     if after > before:  # the coarse levels led astray and the finest did not come back: keep the start
         return start, before, before
     return poses, before, after
