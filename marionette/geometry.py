@@ -15,6 +15,7 @@ __all__ = [
     "quaternion_to_matrix",
     "matrix_to_quaternion",
     "quaternion_multiply",
+    "skew",
     "axis_angle_to_matrix",
     "matrix_to_axis_angle",
     "so3_left_jacobian",
@@ -96,13 +97,18 @@ def matrix_to_quaternion(m: np.ndarray) -> np.ndarray:
     return q.reshape(batch + (4,))
 
 
+def skew(v: np.ndarray) -> np.ndarray:
+    """Vectors (..., 3) → cross-product matrices (..., 3, 3): ``skew(a) @ b == a × b``."""
+    k = np.zeros(np.shape(v)[:-1] + (3, 3))
+    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    return k - np.swapaxes(k, -1, -2)
+
+
 def axis_angle_to_matrix(v: np.ndarray) -> np.ndarray:
     """Axis-angle vectors (..., 3) → rotation matrices (..., 3, 3) (Rodrigues)."""
     v = np.asarray(v, dtype=np.float64)
     theta = np.linalg.norm(v, axis=-1)[..., None, None]
-    k = np.zeros(v.shape[:-1] + (3, 3))
-    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
-    k = k - np.swapaxes(k, -1, -2)
+    k = skew(v)
     small = theta < 1e-8
     safe = np.where(small, 1.0, theta)
     a = np.where(small, 1.0 - theta**2 / 6.0, np.sin(safe) / safe)
@@ -121,9 +127,7 @@ def so3_left_jacobian(w: np.ndarray) -> np.ndarray:
     theta = np.where(small, 1.0, theta)
     a = np.where(small, 0.5, (1 - np.cos(theta)) / theta**2)
     b = np.where(small, 1 / 6, (theta - np.sin(theta)) / theta**3)
-    k = np.zeros(w.shape[:-1] + (3, 3))
-    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -w[..., 2], w[..., 1], -w[..., 0]
-    k = k - np.swapaxes(k, -1, -2)
+    k = skew(w)
     # (b k) k, not b (k k): the bundle adjustment's poses, and with them the hinge's part count, follow its last bits.
     return np.eye(3) + a * k + b * k @ k
 

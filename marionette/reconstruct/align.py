@@ -39,6 +39,7 @@ from ..errors import InputError
 from ..gaussians import Gaussians
 from ..geometry import axis_angle_to_matrix, so3_left_jacobian
 from ..progress import ProgressCallback
+from ..render import render
 from ..render.backward import render_with_grad
 from ._init import pose_gaussians
 from ._views import FitView, make_view
@@ -150,16 +151,18 @@ def frame_loss(gaussians: Gaussians, parts: np.ndarray, poses: np.ndarray, view:
     ``c`` of the Cauchy silhouette term (``inf``: squared).
     """
     posed = pose_gaussians(gaussians, parts, poses)
-    out = render_with_grad(posed, view.camera, (1.0, 1.0, 1.0))
-    res = (out.output.image - view.target) * _interior(view.mask)[..., None]  # (H, W, 3)
-    a_res = out.output.alpha - view.mask  # (H, W)
+    # The plain forward when no gradient is asked for: the same image, without keeping the backward's state.
+    with_grad = render_with_grad(posed, view.camera, (1.0, 1.0, 1.0)) if pivots is not None else None
+    out = with_grad.output if with_grad is not None else render(posed, view.camera, (1.0, 1.0, 1.0))
+    res = (out.image - view.target) * _interior(view.mask)[..., None]  # (H, W, 3)
+    a_res = out.alpha - view.mask  # (H, W)
     eps = options.charbonnier
     root = np.sqrt(res * res + eps * eps)
     cost, slope = _silhouette(a_res, scale)
     loss = float((root - eps).mean() + options.mask_weight * cost.mean())
     if pivots is None:
         return loss, None
-    grads = out.backward(res / root / res.size, (options.mask_weight / a_res.size) * slope,
+    grads = with_grad.backward(res / root / res.size, (options.mask_weight / a_res.size) * slope,
                          groups=[parts == k for k in range(len(poses))], pivot=pivots)
     return loss, grads.pose
 
@@ -269,11 +272,11 @@ def align_poses(gaussians: Gaussians, parts: np.ndarray, frames, masks, K: np.nd
     """
     options.check()
     poses = np.array(poses, dtype=np.float64)
-    k_count, t_count = poses.shape[:2]
     parts = np.asarray(parts)
-    if poses.shape != (k_count, t_count, 4, 4) or len(parts) != len(gaussians.means) or \
-            (len(parts) and not 0 <= parts.min() <= parts.max() < k_count):
+    if poses.ndim != 4 or poses.shape[2:] != (4, 4) or len(parts) != len(gaussians.means) or \
+            (len(parts) and not 0 <= parts.min() <= parts.max() < len(poses)):
         raise InputError("align_poses: poses must be (K, T, 4, 4) and parts (N,) indices into the K parts")
+    k_count, t_count = poses.shape[:2]
     movable = np.ones(k_count, bool) if movable is None else np.asarray(movable, bool)
     h, w = np.asarray(masks[0]).shape
     scale = min(1.0, options.max_side / max(w, h))

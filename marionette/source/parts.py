@@ -110,7 +110,7 @@ from scipy import sparse
 from scipy.spatial import cKDTree
 
 from ..errors import InputError
-from ..geometry import axis_angle_to_matrix
+from ..geometry import axis_angle_to_matrix, skew
 from .tracks import Tracks
 
 __all__ = ["PartSegmentation", "segment_parts", "STATIC", "OUTLIER", "OFF_OBJECT"]
@@ -216,13 +216,6 @@ def _move(rot: np.ndarray, trans: np.ndarray, points: np.ndarray) -> np.ndarray:
     return points @ np.swapaxes(rot, 1, 2) + trans[:, None]
 
 
-def _skew(v: np.ndarray) -> np.ndarray:
-    """Vectors (..., 3) → cross-product matrices (..., 3, 3)."""
-    k = np.zeros(v.shape[:-1] + (3, 3))
-    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
-    return k - np.swapaxes(k, -1, -2)
-
-
 def _refine_poses(rot: np.ndarray, trans: np.ndarray, points: np.ndarray, obs: np.ndarray, weights: np.ndarray,
                   iterations: int) -> tuple[np.ndarray, np.ndarray]:
     """Gauss–Newton on each frame's pose, all frames at once.
@@ -237,7 +230,7 @@ def _refine_poses(rot: np.ndarray, trans: np.ndarray, points: np.ndarray, obs: n
     for _ in range(iterations):
         cam = _move(rot, trans, points)
         xy, jac = _project(cam)
-        jw = np.concatenate([jac @ -_skew(cam), jac], axis=-1) * sw[..., None]  # (T, N, 2, 6)
+        jw = np.concatenate([jac @ -skew(cam), jac], axis=-1) * sw[..., None]  # (T, N, 2, 6)
         jw = jw.reshape(num_frames, 2 * n, 6)
         res = ((obs - xy) * sw).reshape(num_frames, 2 * n, 1)
         jt = np.swapaxes(jw, 1, 2)
@@ -357,7 +350,7 @@ def _bundle_adjust(motion: _Motion, points: np.ndarray, prior: np.ndarray, obs: 
     for _ in range(iterations):
         cam = _move(rot, trans, points)
         xy, jac = _project(cam)
-        j_cam = np.concatenate([jac @ -_skew(cam), jac], axis=-1) * w  # (T, N, 2, 6)
+        j_cam = np.concatenate([jac @ -skew(cam), jac], axis=-1) * w  # (T, N, 2, 6)
         j_pt = (jac @ rot[:, None]) * w  # (T, N, 2, 3)
         res = (obs - xy) * w[..., 0]
         jc = j_cam.reshape(num_frames, 2 * n, 6)

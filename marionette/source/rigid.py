@@ -63,8 +63,8 @@ from scipy import sparse
 from scipy.optimize import least_squares
 from scipy.spatial import cKDTree
 
-from ..geometry import (axis_angle_to_matrix, invert_transform, make_transform, se3_interpolate, so3_left_jacobian,
-                        transform_points)
+from ..geometry import (axis_angle_to_matrix, invert_transform, make_transform, se3_interpolate, skew,
+                        so3_left_jacobian, transform_points)
 from .tracks import Tracks
 
 __all__ = ["ShapePrior", "RigidOptions", "RigidFit", "fit_rigid", "carved_centroid"]
@@ -431,13 +431,6 @@ def _fill_failed(poses: np.ndarray, failed: dict[int, str]) -> np.ndarray:
     return out
 
 
-def _skew(v: np.ndarray) -> np.ndarray:
-    """Vectors (..., 3) → cross-product matrices (..., 3, 3)."""
-    out = np.zeros(v.shape[:-1] + (3, 3))
-    out[..., 0, 1], out[..., 0, 2], out[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
-    return out - np.swapaxes(out, -1, -2)
-
-
 def _huber_weights(norms: np.ndarray, scale: float) -> tuple[np.ndarray, float]:
     """IRLS weights (O,) of the Huber loss on residual norms (O,), and the total Huber cost."""
     big = norms > scale
@@ -526,7 +519,7 @@ def _bundle_adjust(observed: np.ndarray, uv: np.ndarray, k: np.ndarray, poses: n
         j_proj[:, :, 2] = -fxy * cam[:, :2] / z[:, None] ** 2
         j_proj_moving = j_proj[moving]
         # d(exp(ω) R₀ X)/dω = -[R X]ₓ J_l(ω).
-        j_rot = -j_proj_moving @ _skew(rx[moving]) @ so3_left_jacobian(omega)[obs_slot]
+        j_rot = -j_proj_moving @ skew(rx[moving]) @ so3_left_jacobian(omega)[obs_slot]
         values = np.concatenate([
             np.concatenate([j_rot, j_proj_moving], axis=2).ravel(),
             (j_proj @ rot[obs_t]).ravel(),
