@@ -35,6 +35,8 @@ from .progress import Reporter
 from .render import render
 from .render.camera_path import CAMERA_MOVES, check_camera_move, load_camera_path
 from .source import ExtractOptions
+from .target.lift import LiftOptions
+from .target.shapes import SHAPES
 from .transfer.controls import LOOPS, output_length, source_times
 from .transfer.refine import RefineOptions
 
@@ -316,6 +318,9 @@ Anchor = Annotated[str, typer.Option(
          "does ('world').")]
 TargetDepth = Annotated[Optional[Path], typer.Option(
     help="Depth map of the target image (16-bit PNG in mm, or .npy) to shape it instead of inflating its silhouette.")]
+TargetShape = Annotated[str, typer.Option(
+    "--shape", help="Shape prior of an image target: auto (chosen from its outline), inflate, revolve (pots, "
+                    "bottles) or extrude (boxes, appliances).")]
 TargetMask = Annotated[Optional[Path], typer.Option(
     help="Image marking the target object (default: alpha, else found automatically).")]
 PlyDir = Annotated[Optional[Path], typer.Option(help="Also write each frame's Gaussians as DIR/00000.ply ….")]
@@ -346,6 +351,7 @@ class _Playback:
     ply_dir: Path | None
     target_mask: Path | None
     target_depth: Path | None
+    shape: str
     anchor: str
     part_seeds: dict[int, tuple[float, float]] | None
     refine: bool
@@ -355,7 +361,7 @@ class _Playback:
 
 def _playback(output: Path, target: Path, frames, speed, loop, reverse, rotation_scale, translation_scale, fps,
               background, size,
-              camera, camera_amount, camera_path, ply_dir, target_mask, target_depth, anchor, part_seed, refine,
+              camera, camera_amount, camera_path, ply_dir, target_mask, target_depth, shape, anchor, part_seed, refine,
               preview, splats) -> _Playback:
     """Check every playback option (before any work starts) and the output paths."""
     _transfer_checks(frames, speed, fps)
@@ -377,12 +383,14 @@ def _playback(output: Path, target: Path, frames, speed, loop, reverse, rotation
         check_output_folder(ply_dir, pipeline.PLY_FRAME_NAME)
     if anchor not in ("centroid", "world"):
         raise InputError(f"--anchor must be 'centroid' or 'world', got {anchor!r}")
+    if shape != "auto" and shape not in SHAPES:
+        raise InputError(f"--shape must be auto or one of {', '.join(SHAPES)}, got {shape!r}")
     if target_mask is not None and not target_mask.is_file():
         raise InputError(f"target mask {target_mask} does not exist")
     pipeline.check_target(target, target_mask, target_depth)
     return _Playback(frames, speed, loop, reverse, rotation_scale, translation_scale, fps,
                      _parsed("--background", parse_background, background), _parsed("--size", parse_size, size),
-                     camera, camera_amount, camera_path, ply_dir, target_mask, target_depth, anchor,
+                     camera, camera_amount, camera_path, ply_dir, target_mask, target_depth, shape, anchor,
                      _parsed("--part-seed", parse_part_seeds, part_seed or None), refine, preview, splats)
 
 
@@ -394,8 +402,10 @@ def _transfer_and_render(prior, target: Path, output: Path, play: _Playback, ses
                     else load_camera_path(play.camera_path, output_length(prior.num_frames, play.speed, play.frames)))
     with session.reporter.stage("lifting target", 1) as progress:
         lifted = pipeline.load_target(target, size=play.size, mask=play.target_mask, depth=play.target_depth,
-                                      prior=prior)
+                                      options=LiftOptions(shape=play.shape), prior=prior)
         progress(1, 1)
+    if lifted.shape is not None:
+        session.reporter.detail(lifted.shape.describe())
     with session.reporter.stage("transfer", 1) as progress:
         trajectory = pipeline.transfer(prior, lifted, frames=play.frames, speed=play.speed, loop=play.loop,
                                        reverse=play.reverse, rotation_scale=play.rotation_scale,
@@ -408,7 +418,8 @@ def _transfer_and_render(prior, target: Path, output: Path, play: _Playback, ses
                           background=play.background, reporter=session.reporter)
     session.output("video", output)
     session.figures["target"] = {"gaussians": len(lifted.gaussians), "frames": trajectory.num_frames,
-                                 "size": [cameras[0].width, cameras[0].height], "fps": play.fps or prior.fps}
+                                 "size": [cameras[0].width, cameras[0].height], "fps": play.fps or prior.fps,
+                                 "shape": None if lifted.shape is None else lifted.shape.as_dict()}
     if play.preview is not None:
         pipeline.write_preview(session.stage(play.preview), video, fps=play.fps or prior.fps)
         session.output("preview", play.preview)
@@ -429,15 +440,15 @@ def transfer(prior: Annotated[Path, typer.Argument(help="SpaT prior .npz.")],
              rotation_scale: RotationScale = 1.0, translation_scale: TranslationScale = 1.0, fps: Fps = None,
              background: Background = "1,1,1", size: Size = None, camera: CameraMove = "static",
              camera_amount: CameraAmount = None, camera_path: CameraPath = None, ply_dir: PlyDir = None,
-             target_mask: TargetMask = None, target_depth: TargetDepth = None, anchor: Anchor = "centroid",
-             part_seed: PartSeed = None, refine: Refine = True,
+             target_mask: TargetMask = None, target_depth: TargetDepth = None, shape: TargetShape = "auto",
+             anchor: Anchor = "centroid", part_seed: PartSeed = None, refine: Refine = True,
              preview: Preview = None, splats: Splats = None, quiet: Quiet = False, verbose: Verbose = False,
              json_summary: Json = False, config: Config = None) -> None:
     """Apply a SpaT prior to a target image or .ply and render the video."""
     play = _playback(output, target, frames, speed, loop, reverse, rotation_scale, translation_scale, fps,
                      background, size,
-                     camera, camera_amount, camera_path, ply_dir, target_mask, target_depth, anchor, part_seed, refine,
-                     preview, splats)
+                     camera, camera_amount, camera_path, ply_dir, target_mask, target_depth, shape, anchor, part_seed,
+                     refine, preview, splats)
     with _session("transfer", quiet, verbose, json_summary) as session:
         _transfer_and_render(read_prior(prior), target, output, play, session)
 
@@ -452,15 +463,15 @@ def run(source: Annotated[Path, typer.Argument(help="Video file or folder of fra
         rotation_scale: RotationScale = 1.0, translation_scale: TranslationScale = 1.0, fps: Fps = None,
         background: Background = "1,1,1", size: Size = None, camera: CameraMove = "static",
         camera_amount: CameraAmount = None, camera_path: CameraPath = None, ply_dir: PlyDir = None,
-        target_mask: TargetMask = None, target_depth: TargetDepth = None, anchor: Anchor = "centroid",
-        part_seed: PartSeed = None, refine: Refine = True,
+        target_mask: TargetMask = None, target_depth: TargetDepth = None, shape: TargetShape = "auto",
+        anchor: Anchor = "centroid", part_seed: PartSeed = None, refine: Refine = True,
         preview: Preview = None, splats: Splats = None, side_by_side: SideBySide = None, report: Report = None,
         quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False, config: Config = None) -> None:
     """Extract the source's motion and transfer it onto the target in one go."""
     play = _playback(output, target, frames, speed, loop, reverse, rotation_scale, translation_scale, fps,
                      background, size,
-                     camera, camera_amount, camera_path, ply_dir, target_mask, target_depth, anchor, part_seed, refine,
-                     preview, splats)
+                     camera, camera_amount, camera_path, ply_dir, target_mask, target_depth, shape, anchor, part_seed,
+                     refine, preview, splats)
     if side_by_side is not None:
         _video_output(side_by_side)
     _output_file(report, ".json", "--report")

@@ -55,18 +55,32 @@ def test_inflation_of_a_disc_is_a_ball():
     assert h[~inside].max() == 0
 
 
+def nearest_per_pixel(lifted):
+    """Index of the Gaussian nearest the camera among those made from each pixel, and the projections."""
+    uv, z = lifted.camera.project(lifted.gaussians.means)
+    key = lifted.pixel_of[:, 1].astype(np.int64) * 100_000 + lifted.pixel_of[:, 0]
+    order = np.lexsort((z, key))
+    first = order[np.r_[True, key[order][1:] != key[order][:-1]]]
+    return first, uv, z
+
+
 def test_lifted_gaussians_project_onto_their_pixels_and_have_unit_radius():
     img, inside = disc_image()
     lifted = lift_image(img)
-    uv, z = lifted.camera.project(lifted.gaussians.means)
+    first, uv, z = nearest_per_pixel(lifted)
     assert np.all(z > 0)
-    assert np.abs(uv - lifted.pixel_of).max() < 1e-3
-    front = lifted.gaussians.means[: inside.sum()].astype(np.float64)
+    assert len(first) == inside.sum()  # every object pixel has surfels
+    # The front surfels lie on their own pixel: within its footprint, on its colour where the surface is flat.
+    assert np.abs(uv[first] - lifted.pixel_of[first]).max() <= 0.5
+    inner = cv2.erode(inside.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    own = inner[lifted.pixel_of[first, 1], lifted.pixel_of[first, 0]]
+    u, v = lifted.pixel_of[first[own]].T
+    assert np.abs(lifted.gaussians.rgb[first[own]] - img[v, u, :3] / 255.0).max() < 0.02
+    front = lifted.gaussians.means[first].astype(np.float64)
     z0 = depth_for_radius(inside, lifted.camera.fx)
     # depth_for_radius puts the outline at a depth where its RMS radius is 1 world unit.
     lateral = front[:, :2] * (z0 / front[:, 2:])
     assert np.sqrt(((lateral - lateral.mean(axis=0)) ** 2).sum(axis=1).mean()) == pytest.approx(1.0, rel=0.03)
-    assert np.allclose(lifted.gaussians.rgb[: inside.sum()], img[inside][:, :3] / 255.0, atol=1e-5)
 
 
 def test_stride_and_thickness_options():
@@ -105,8 +119,8 @@ def test_relative_depth_sets_distance_over_size():
         c = m.mean(axis=0)
         rms = np.sqrt(((m - c) ** 2).sum(axis=1).mean())
         assert np.linalg.norm(c) / rms == pytest.approx(ratio, rel=0.05)
-        uv, _ = lifted.camera.project(lifted.gaussians.means)
-        assert np.abs(uv - lifted.pixel_of).max() < 1e-3  # still pixel-aligned
+        first, uv, _ = nearest_per_pixel(lifted)
+        assert np.abs(uv[first] - lifted.pixel_of[first]).max() <= 0.5  # still pixel-aligned
     with pytest.raises(InputError, match="relative depth"):
         lift_image(img, options=LiftOptions(relative_depth=-1.0))
 

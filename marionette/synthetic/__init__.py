@@ -16,8 +16,9 @@ from ._scene import (
     TARGET_OBJECTS,
     SyntheticScene,
     make_scene,
+    object_view,
     render_object_image,
 )
 
 __all__ = ["CAMERA_MOTIONS", "MOTIONS", "OBJECTS", "TARGET_OBJECTS", "SyntheticScene", "make_scene",
-           "render_object_image"]
+           "object_view", "render_object_image"]

@@ -165,6 +165,35 @@ def make_hinged_box(geom: np.random.Generator, tex: np.random.Generator, target:
     return Shape((body, lid_faces), (hinge_point, np.array([-1.0, 0.0, 0.0])))
 
 
+def _revolved(profile: np.ndarray, heights: np.ndarray, hues: np.ndarray, tex: np.random.Generator,
+              target: bool, facets: int) -> tuple[Face, ...]:
+    """Upright slabs (one per radius in ``profile`` (S,), edges at ``heights`` (S+1,), top to bottom):
+    ``facets`` side facets with smooth shading, one side texture wrapped once round all of them (seam at
+    the back, +z), and disc caps on every slab, hidden where a wider neighbour covers them."""
+    height = float(heights[-1] - heights[0])
+    r_max = float(profile.max())
+    side_tex = face_texture(tex, _texture_shape(2 * np.pi * r_max, height), hues[0], saturation=0.7, value=0.95,
+                            checker=target)
+    phi = np.linspace(-np.pi, np.pi, facets + 1)  # angle 0 faces the viewer (-z)
+    normals = np.stack([np.sin(phi), np.zeros_like(phi), -np.cos(phi)], axis=1)
+    faces = []
+    for k, r in enumerate(profile):
+        y0, y1 = heights[k], heights[k + 1]
+        rim = np.stack([r * np.sin(phi), np.full_like(phi, y0), -r * np.cos(phi)], axis=1)
+        t0, t1 = (y0 - heights[0]) / height, (y1 - heights[0]) / height
+        faces += [Face(rim[i], rim[i + 1] - rim[i], np.array([0.0, y1 - y0, 0.0]), normals[i:i + 2], side_tex,
+                       np.array([i / facets, (i + 1) / facets, t0, t1])) for i in range(facets)]
+    cap_textures = [face_texture(tex, _texture_shape(2 * r_max, 2 * r_max), hue, saturation=0.7, value=0.95,
+                                 checker=target) for hue in hues[1:3]]
+    for k, r in enumerate(profile):
+        for y, cap_tex in ((heights[k], cap_textures[0]), (heights[k + 1], cap_textures[1])):
+            up = np.sign(y - 0.5 * (heights[k] + heights[k + 1]))
+            n = np.array([0.0, up, 0.0])
+            faces.append(Face(np.array([-r, y, r * up]), np.array([2 * r, 0.0, 0.0]), np.array([0.0, 0.0, -2 * r * up]),
+                              np.stack([n, n]), cap_tex, np.array([0.0, 1.0, 0.0, 1.0]), disk=True))
+    return tuple(faces)
+
+
 def make_cylinder(geom: np.random.Generator, tex: np.random.Generator, target: bool = True,
                   facets: int = 48) -> Shape:
     """A squat upright can: ``facets`` side facets with smooth shading, plus disc caps.
@@ -173,22 +202,24 @@ def make_cylinder(geom: np.random.Generator, tex: np.random.Generator, target: b
     """
     r, height = geom.uniform(0.55, 0.65), geom.uniform(1.0, 1.2)
     hues = _hues(tex, 3, target)
-    side_tex = face_texture(tex, _texture_shape(2 * np.pi * r, height), hues[0], saturation=0.7, value=0.95,
-                            checker=target)
-    # Angle 0 faces the viewer (-z); the seam sits at ±π.
-    phi = np.linspace(-np.pi, np.pi, facets + 1)
-    rim = np.stack([r * np.sin(phi), np.full_like(phi, -height / 2), -r * np.cos(phi)], axis=1)
-    normals = np.stack([np.sin(phi), np.zeros_like(phi), -np.cos(phi)], axis=1)
-    side = tuple(
-        Face(rim[i], rim[i + 1] - rim[i], np.array([0.0, height, 0.0]), normals[i:i + 2], side_tex,
-             np.array([i / facets, (i + 1) / facets, 0.0, 1.0]))
-        for i in range(facets)
-    )
-    caps = []
-    for y, hue in ((-height / 2, hues[1]), (height / 2, hues[2])):
-        cap_tex = face_texture(tex, _texture_shape(2 * r, 2 * r), hue, saturation=0.7, value=0.95, checker=target)
-        n = np.array([0.0, np.sign(y), 0.0])
-        caps.append(Face(np.array([-r, y, r * np.sign(y)]), np.array([2 * r, 0.0, 0.0]),
-                         np.array([0.0, 0.0, -2 * r * np.sign(y)]), np.stack([n, n]), cap_tex,
-                         np.array([0.0, 1.0, 0.0, 1.0]), disk=True))
-    return Shape((side + tuple(caps),))
+    return Shape((_revolved(np.array([r]), np.array([-height / 2, height / 2]), hues, tex, target, facets),))
+
+
+def make_vase(geom: np.random.Generator, tex: np.random.Generator, target: bool = True, facets: int = 48,
+              slabs: int = 24) -> Shape:
+    """An upright vase: a surface of revolution (a bulging belly, a narrow neck, a flared lip) from thin slabs."""
+    height = geom.uniform(1.6, 1.9)
+    belly, neck, lip = geom.uniform(0.5, 0.6), geom.uniform(0.2, 0.26), geom.uniform(0.3, 0.36)
+    t = (np.arange(slabs) + 0.5) / slabs  # 0 at the top
+    profile = (lip + (neck - lip) * np.clip(t / 0.15, 0, 1)  # lip to neck
+               + (belly - neck) * np.sin(np.pi * np.clip((t - 0.15) / 0.85, 0, 1)) ** 0.8)  # the belly
+    profile = np.maximum(profile, 0.6 * neck)
+    heights = np.linspace(-height / 2, height / 2, slabs + 1)
+    return Shape((_revolved(profile, heights, _hues(tex, 3, target), tex, target, facets),))
+
+
+def make_rod(geom: np.random.Generator, tex: np.random.Generator, target: bool = True) -> Shape:
+    """A thin upright square bar, about 1/20 as wide as it is tall."""
+    height = geom.uniform(1.8, 2.0)
+    half = 0.5 * np.array([0.05 * height, height, 0.05 * height])
+    return Shape((_box_faces(np.zeros(3), half, _hues(tex, 6, target), tex, target),))

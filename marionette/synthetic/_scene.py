@@ -11,14 +11,14 @@ from ..errors import InputError
 from ..geometry import axis_angle_to_matrix, invert_transform, make_transform
 from ..prior import SpatPrior
 from ._motions import plan_camera, plan_motion
-from ._objects import make_box, make_cylinder, make_hinged_box
+from ._objects import make_box, make_cylinder, make_hinged_box, make_rod, make_vase
 from ._render import pixel_depth, render_shape, resolve, view_background
 from ._textures import background_texture
 
 MOTIONS = ("translation", "inplane", "outofplane", "oscillation", "hinge")
 OBJECTS = ("box", "hinge")
 #: Objects ``render_object_image`` can draw.
-TARGET_OBJECTS = ("box", "hinge", "cylinder")
+TARGET_OBJECTS = ("box", "hinge", "cylinder", "vase", "rod")
 BACKGROUNDS = ("textured", "plain")
 CAMERA_MOTIONS = ("static", "pan", "handheld")
 
@@ -28,7 +28,8 @@ _PLAIN_BACKGROUND = np.array([0.86, 0.86, 0.84], np.float32)
 #: Depth of the background plane, in units of the object's depth at frame 0:
 #: far enough that a moving camera sees it turn almost like a rotation homography.
 _BACKGROUND_DEPTH = 10.0
-_BUILDERS = {"box": make_box, "hinge": make_hinged_box, "cylinder": make_cylinder}
+_BUILDERS = {"box": make_box, "hinge": make_hinged_box, "cylinder": make_cylinder, "vase": make_vase,
+             "rod": make_rod}
 
 
 @dataclass(frozen=True)
@@ -282,24 +283,44 @@ def render_object_image(object: str = "box", *, size: tuple[int, int] = (256, 25
                         yaw_deg: float = 30.0, pitch_deg: float = 20.0) -> np.ndarray:
     """An RGBA still (H, W, 4) uint8 of a synthetic object, for use as a target image.
 
-    The object (``"box"``, ``"hinge"`` or ``"cylinder"``, a squat can) gets
-    warm colours and a checker of colour cells, so it looks unlike
-    ``make_scene``'s objects. It is centred, turned by ``yaw_deg`` about its
-    vertical axis and tilted ``pitch_deg`` towards the camera (60° horizontal
-    field of view); its bounding sphere spans ~80 % of the smaller image side.
-    Alpha is 255 on object pixels (coverage > 0.5) and 0 elsewhere; the
-    transparent background is white.
+    The object (``"box"``, ``"hinge"``, ``"cylinder"`` (a squat can), ``"vase"``
+    (a surface of revolution) or ``"rod"`` (a thin bar)) gets warm colours and
+    a checker of colour cells, so it looks unlike ``make_scene``'s objects. It
+    is centred, turned by ``yaw_deg`` about its vertical axis and tilted
+    ``pitch_deg`` towards the camera (60° horizontal field of view); its
+    bounding sphere spans ~80 % of the smaller image side. Alpha is 255 on
+    object pixels (coverage > 0.5) and 0 elsewhere; the transparent background
+    is white. :func:`object_view` also gives the camera and the object's centre.
+    """
+    return object_view(object, size=size, seed=seed, yaw_deg=yaw_deg, pitch_deg=pitch_deg)[0]
+
+
+def object_view(object: str = "box", *, size: tuple[int, int] = (256, 256), seed: int = 0, yaw_deg: float = 30.0,
+                pitch_deg: float = 20.0, fov_deg: float = FOV_DEG,
+                turn_deg: float = 0.0) -> tuple[np.ndarray, Camera, np.ndarray]:
+    """:func:`render_object_image`'s still (H, W, 4), its camera and the object's centre (3,) in the camera frame.
+
+    ``fov_deg``: the camera's horizontal field of view (the object still spans ~80 % of the image; a
+    narrower field is a longer lens, with less perspective). ``turn_deg``: the posed object then turned
+    about the camera's vertical axis through its centre (the truth for a single-view lift turned so).
+
+    The same ``object``, ``size`` and ``seed`` at other yaws show the same object turned about its own
+    vertical axis (the camera's ``y`` axis tilted by ``pitch_deg``) through that centre: the truth for
+    novel views.
     """
     if object not in TARGET_OBJECTS:
         raise InputError(f"object must be one of {', '.join(TARGET_OBJECTS)}, got {object!r}")
     width, height = _check_size(size)
     seed = _check_seed(seed)
-    for name, value in (("yaw_deg", yaw_deg), ("pitch_deg", pitch_deg)):
+    for name, value in (("yaw_deg", yaw_deg), ("pitch_deg", pitch_deg), ("fov_deg", fov_deg), ("turn_deg", turn_deg)):
         if isinstance(value, bool) or not isinstance(value, (int, float, np.number)) or not np.isfinite(value):
             raise InputError(f"{name} must be a finite number, got {value!r}")
+    if not 1.0 <= fov_deg <= 170.0:
+        raise InputError(f"fov_deg must be between 1 and 170, got {fov_deg!r}")
     local = _BUILDERS[object](_rng(seed, _TARGET, _GEOMETRY), _rng(seed, _TARGET, _TEXTURE), target=True)
-    camera = Camera.from_fov(width, height, FOV_DEG)
-    rot = (axis_angle_to_matrix([np.radians(pitch_deg), 0.0, 0.0])
+    camera = Camera.from_fov(width, height, fov_deg)
+    rot = (axis_angle_to_matrix([0.0, np.radians(turn_deg), 0.0])
+           @ axis_angle_to_matrix([np.radians(pitch_deg), 0.0, 0.0])
            @ axis_angle_to_matrix([0.0, np.radians(yaw_deg), 0.0]))
     z = camera.fx * local.bounding_radius() / (0.8 * min(width, height) / 2)
     shape = local.transformed(make_transform(rot, [0.0, 0.0, z]))
@@ -311,4 +332,4 @@ def render_object_image(object: str = "box", *, size: tuple[int, int] = (256, 25
     out = np.empty((height, width, 4), np.uint8)
     out[..., :3] = np.clip(np.rint(rgb * 255.0), 0, 255)
     out[..., 3] = np.where(mask, 255, 0)
-    return out
+    return out, camera, np.array([0.0, 0.0, z])

@@ -1,10 +1,11 @@
 """Single image → pixel-aligned 3D Gaussians (Motion Marionette stage 4).
 
 The paper lifts the target with an image-to-3D model; none can be had offline,
-so the default is geometric: the object's silhouette is inflated into a
-rounded closed volume (front and back surfaces meeting at the outline), and
-one Gaussian sits on each visible pixel so the reference view reproduces the
-image. The back surface takes the colour of the front pixel it lies behind.
+so the default is geometric: a shape prior chosen from the silhouette
+(:mod:`.shapes`: inflated, revolved or extruded) gives the object's depth,
+and its closed surface is sampled by area into flat Gaussians
+(:mod:`.surfels`), one on each visible pixel's ray where the surface faces
+the camera, so the reference view reproduces the image.
 """
 
 from __future__ import annotations
@@ -13,16 +14,17 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy import ndimage, sparse
-from scipy.sparse.linalg import spsolve
+from scipy import ndimage
 
 from ..camera import Camera
 from ..errors import InputError
 from ..gaussians import Gaussians
 from ..segment import grabcut_mask, salient_mask
+from .shapes import SHAPES, ShapeChoice, choose_shape, half_thickness, inflate_silhouette
+from .surfels import sample_surface
 
 __all__ = ["LiftOptions", "LiftedTarget", "lift_image", "object_mask", "alpha_mask", "inflate_silhouette",
-           "depth_for_radius"]
+           "depth_for_radius", "SHAPES", "ShapeChoice"]
 
 
 @dataclass(frozen=True)
@@ -54,6 +56,10 @@ class LiftOptions:
         world units. When set, it places the object (e.g. where a source
         prior put it) and its size follows from the camera; ``radius`` is
         then unused. None: the depth follows from ``radius``.
+    shape : str
+        Shape prior: ``"auto"`` (chosen from the silhouette,
+        :func:`~marionette.target.shapes.choose_shape`) or one of
+        :data:`~marionette.target.shapes.SHAPES`.
     """
 
     stride: int = 1
@@ -63,6 +69,7 @@ class LiftOptions:
     opacity: float = 0.98
     relative_depth: float | None = None
     depth: float | None = None
+    shape: str = "auto"
 
 
 @dataclass(frozen=True)
@@ -75,12 +82,14 @@ class LiftedTarget:
     camera : Camera, the reference view (world_to_camera identity).
     mask : (H, W) bool, object pixels of the input image.
     pixel_of : (N, 2) int32, the (u, v) pixel each Gaussian was made from.
+    shape : ShapeChoice or None, the shape prior used and why (None for Gaussians taken as given).
     """
 
     gaussians: Gaussians
     camera: Camera
     mask: np.ndarray
     pixel_of: np.ndarray
+    shape: ShapeChoice | None = None
 
 
 def alpha_mask(image: np.ndarray) -> np.ndarray | None:
@@ -162,40 +171,6 @@ def _key_plain_background(rgb: np.ndarray) -> np.ndarray | None:
     return (keep | (1 - filled)).astype(bool) if not keep[0, 0] else keep.astype(bool)
 
 
-def inflate_silhouette(mask: np.ndarray) -> np.ndarray:
-    """(H, W) bool mask → (H, W) float32 half-thickness in pixels, 0 outside.
-
-    Solves the Poisson problem ``∇²u = −4`` inside the mask with ``u = 0``
-    outside (5-point Laplacian, scipy.sparse), and takes ``h = sqrt(u)``: for
-    a disc of radius ``R`` the solution is ``u = R² − r²``, so ``h`` is a
-    ball's profile; any other silhouette gets a smooth, rounded volume that
-    meets itself at the outline and is thicker where the shape is wide.
-    """
-    mask = np.asarray(mask, dtype=bool).copy()
-    mask[[0, -1], :] = False  # the image border counts as outside
-    mask[:, [0, -1]] = False
-    out = np.zeros(mask.shape, np.float32)
-    count = int(mask.sum())
-    if count == 0:
-        return out
-    index = np.full(mask.shape, -1, np.int64)
-    index[mask] = np.arange(count)
-    rows, cols = np.nonzero(mask)
-    centre = index[rows, cols]
-    i, j = [centre], [centre]
-    values = [np.full(count, 4.0)]
-    for dv, du in ((1, 0), (-1, 0), (0, 1), (0, -1)):
-        nb = index[rows + dv, cols + du]
-        inside = nb >= 0
-        i.append(centre[inside])
-        j.append(nb[inside])
-        values.append(np.full(int(inside.sum()), -1.0))
-    lap = sparse.csr_matrix((np.concatenate(values), (np.concatenate(i), np.concatenate(j))), shape=(count, count))
-    u = spsolve(lap, np.full(count, 4.0))
-    out[mask] = np.sqrt(np.clip(u, 0.0, None))
-    return out
-
-
 def pixel_radius(mask: np.ndarray) -> float:
     """RMS distance in pixels of the (H, W) mask's pixels to their centroid (at least 1)."""
     v, u = np.nonzero(mask)
@@ -211,20 +186,35 @@ def depth_for_radius(mask: np.ndarray, focal: float, radius: float = 1.0) -> flo
     return focal * radius / pixel_radius(mask)
 
 
+def _focal_for_relative_depth(mask: np.ndarray, relief: np.ndarray, ratio: float) -> float:
+    """Focal length (pixels) at which the lifted object's distance is ``ratio`` times its RMS radius.
+
+    In pixel units at the outline's depth the object's RMS radius is its lateral spread plus its relief,
+    the lateral spread shrunk by perspective where the front lies ``relief`` nearer (``1 - relief / f``):
+    a fixed point in ``f``, reached in a few steps.
+    """
+    v, u = np.nonzero(mask)
+    lateral2 = (u - u.mean()) ** 2 + (v - v.mean()) ** 2
+    depth = relief[v, u].astype(np.float64)
+    focal = ratio * np.sqrt(lateral2.mean() + (depth**2).mean())
+    for _ in range(8):
+        focal = ratio * np.sqrt((lateral2 * (1.0 - depth / focal) ** 2).mean() + (depth**2).mean())
+    return max(float(focal), 1.0)
+
+
 def lift_image(image: np.ndarray, *, mask: np.ndarray | None = None, camera: Camera | None = None,
                depth_map: np.ndarray | None = None, options: LiftOptions = LiftOptions()) -> LiftedTarget:
     """Lift an (H, W, 3|4) uint8 image into Gaussians seen by ``camera`` as the image.
 
     The object sits at ``options.depth``, or else at the depth
-    :func:`depth_for_radius` gives; each
-    ``stride``-pixel cell inside the mask gets a front Gaussian at
-    ``m - h`` and a back one at ``m + h`` (``h`` from
-    :func:`inflate_silhouette`, scaled by ``thickness``), plus fill-in
-    Gaussians along steep walls so the volume stays closed when it turns.
-    The mid-surface ``m`` is the plane ``z0``; with a ``depth_map``
-    (H, W) (camera z, any unit, NaN or <= 0 unknown) the front surface
-    follows the map instead, scaled so that its median over the object is
-    ``z0 - median(h)``, and ``m`` lies ``h`` behind it.
+    :func:`depth_for_radius` gives. The shape prior's half-thickness ``h``
+    (scaled by ``thickness``) puts the front surface at ``m - h`` and the
+    back at ``m + h`` about the mid-surface ``m``, the plane ``z0``; with a
+    ``depth_map`` (H, W) (camera z, any unit, NaN or <= 0 unknown) the front
+    surface follows the map instead, scaled so that its median over the
+    object is ``z0 - median(h)``, and ``m`` lies ``h`` behind it. The closed
+    surface is sampled by area, one cell per ``stride`` x ``stride`` pixels
+    (:func:`~marionette.target.surfels.sample_surface`).
     """
     h_img, w_img = image.shape[:2]
     if options.stride < 1:
@@ -235,13 +225,12 @@ def lift_image(image: np.ndarray, *, mask: np.ndarray | None = None, camera: Cam
         raise InputError(f"target mask is {mask.shape[1]}x{mask.shape[0]}, image is {w_img}x{h_img}")
     if not mask.any():
         raise InputError("target mask is empty")
-    relief = inflate_silhouette(mask) * options.thickness  # (H, W) half-thickness in pixels
+    choice = choose_shape(mask, options.shape)
+    relief = half_thickness(mask, choice) * options.thickness  # (H, W) half-thickness in pixels
     if camera is None and options.relative_depth is not None:
         if not (np.isfinite(options.relative_depth) and options.relative_depth > 0):
             raise InputError(f"relative depth must be positive, got {options.relative_depth}")
-        # RMS radius of the inflated volume in pixel units: lateral spread plus relief.
-        r3 = np.sqrt(pixel_radius(mask) ** 2 + float((relief[mask] ** 2).mean()))
-        camera = Camera.from_focal(w_img, h_img, options.relative_depth * r3)
+        camera = Camera.from_focal(w_img, h_img, _focal_for_relative_depth(mask, relief, options.relative_depth))
     camera = camera or Camera.from_fov(w_img, h_img, options.fov_deg)
     if (camera.width, camera.height) != (w_img, h_img):
         raise InputError("reference camera size differs from the target image size")
@@ -254,40 +243,9 @@ def lift_image(image: np.ndarray, *, mask: np.ndarray | None = None, camera: Cam
     mid = np.full((h_img, w_img), z0) if depth_map is None else _front_from_depth(depth_map, mask, z0, half) + half
 
     s = options.stride
-    vs, us = np.mgrid[s // 2:h_img:s, s // 2:w_img:s]
-    keep = mask[vs, us]
-    us, vs = us[keep], vs[keep]
-    rgb = image[vs, us, :3].astype(np.float32) / 255.0
-    hz, mz = half[vs, us], mid[vs, us]
-    spacing = s * z0 / f  # lateral spacing of cells, world units
-
-    border = np.pad(np.zeros(mask.shape, bool), s, constant_values=True)
-    zs, idx = [], []
-    for sign in (-1.0, 1.0):
-        surface = mid + sign * half
-        zs.append(mz + sign * hz)
-        idx.append(np.arange(len(us)))
-        # Depth step to the steepest 4-neighbour cell outside the surface: a wall that needs filling,
-        # one fill-in layer per spacing from the surface toward the mid-surface.
-        sp = np.pad(np.where(mask, surface, mid), s, mode="edge")
-        sp[border] = np.pad(mid, s, mode="edge")[border]  # beyond the image: outside the object
-        steep = np.zeros_like(hz)
-        for dv, du in ((s, 0), (-s, 0), (0, s), (0, -s)):
-            steep = np.maximum(steep, sign * (surface[vs, us] - sp[vs + s + dv, us + s + du]))
-        layers = np.floor(np.minimum(steep, 2 * hz) / spacing).astype(int)
-        for k in range(1, int(layers.max(initial=0)) + 1):
-            sel = np.nonzero(layers >= k)[0]
-            zs.append(mz[sel] + sign * (hz[sel] - k * spacing))
-            idx.append(sel)
-    z = np.concatenate(zs)
-    idx = np.concatenate(idx)
-    u, v = us[idx].astype(np.float64), vs[idx].astype(np.float64)
-    x = (u - camera.cx) / camera.fx * z
-    y = (v - camera.cy) / camera.fy * z
-    means_cam = np.stack([x, y, z], axis=1)
-    c2w = np.linalg.inv(camera.world_to_camera)
-    means = means_cam @ c2w[:3, :3].T + c2w[:3, 3]
-    # Gaussians a little wider than the cell so neighbours overlap without gaps.
-    sigma = 0.6 * s * z / f
-    g = Gaussians.from_rgb(means, rgb[idx], sigma, options.opacity)
-    return LiftedTarget(g, camera, mask, np.stack([u, v], axis=1).astype(np.int32))
+    centre_v, centre_u = np.arange(s // 2, h_img, s), np.arange(s // 2, w_img, s)
+    cells = mask[np.ix_(centre_v, centre_u)]
+    gaussians, pixel_of = sample_surface(image, mask, cells, mid[np.ix_(centre_v, centre_u)],
+                                         half[np.ix_(centre_v, centre_u)], camera, s, options.opacity,
+                                         pixel_radius(mask))
+    return LiftedTarget(gaussians, camera, mask, pixel_of, choice)

@@ -1,0 +1,250 @@
+"""Shape priors for a single-view lift: what volume a silhouette most likely bounds.
+
+One photo shows one side of an object; its depth must come from a prior.
+Three are offered, each a half-thickness map ``h`` (pixels) about a flat
+mid-surface, so the front surface lies ``h`` before it and the back ``h``
+behind:
+
+- ``inflate``: the silhouette blown up into a rounded cushion,
+  ``h = sqrt(u)`` with ``∇²u = -4`` inside and ``u = 0`` on the outline (a
+  disc becomes a ball). The fallback for any outline.
+- ``revolve``: a surface of revolution about a near-vertical axis in the
+  image (pots, bottles, vases, cans): each row of the silhouette's
+  mirror-symmetric core is a circle's chord, ``h = sqrt(R_v² - (u - c_v)²)``.
+  What breaks the symmetry (a spout, a handle) is inflated on its own.
+- ``extrude``: the outline pushed straight back with rounded edges (boxes,
+  appliances, books): constant ``h`` away from the outline, a quarter circle
+  of radius ``_EDGE_ROUNDING * depth`` at it. The depth is the shorter side
+  of the silhouette's smallest enclosing rectangle.
+
+:func:`choose_shape` picks one from the silhouette alone: ``extrude`` when
+the outline is a polygon of at most ``_MAX_CORNERS`` corners (it fits within
+``_POLYGON_TOLERANCE`` of the object's size), else ``revolve`` when at least
+``_MIN_SYMMETRY`` of the mask lies in its mirror image about the best
+near-vertical axis, else ``inflate``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy import ndimage, sparse
+from scipy.sparse.linalg import spsolve
+
+from ..errors import InputError
+
+__all__ = ["SHAPES", "ShapeChoice", "choose_shape", "half_thickness", "inflate_silhouette"]
+
+#: Shape prior names accepted by :func:`half_thickness` (``"auto"`` is :func:`choose_shape`'s).
+SHAPES = ("inflate", "revolve", "extrude")
+
+# A polygon approximates the outline within this share of sqrt(area): a circle needs 11 corners at
+# this tolerance, a box seen at any angle at most 6.
+_POLYGON_TOLERANCE = 0.025
+_MAX_CORNERS = 6
+# ...and covers the mask this well (intersection over union), the outline being convex enough.
+_MIN_POLYGON_IOU = 0.95
+_MIN_SOLIDITY = 0.9
+# Share of the mask lying inside its mirror image for a surface of revolution.
+_MIN_SYMMETRY = 0.85
+# Axis tilts tried, as horizontal shift per row (±0.15: about ±8.5 degrees).
+_TILTS = np.linspace(-0.15, 0.15, 7)
+# Edge radius of an extrusion, as a share of its depth.
+_EDGE_ROUNDING = 0.15
+
+
+@dataclass(frozen=True)
+class ShapeChoice:
+    """The shape prior used for a lift and why.
+
+    Attributes
+    ----------
+    name : str
+        One of :data:`SHAPES`.
+    forced : bool
+        True when the caller named it; False when :func:`choose_shape` did.
+    confidence : float
+        In [0, 1]: how well the silhouette fits the chosen prior (the polygon's
+        IoU with the mask for ``extrude``, the symmetric share for
+        ``revolve``; for ``inflate``, one minus the better of the other two).
+    polygon_iou, corners, symmetry : float, int, float
+        The measurements behind the choice.
+    axis : tuple of float
+        ``(column at the mask's centroid row, shift per row)`` of the best
+        mirror axis.
+    """
+
+    name: str
+    forced: bool
+    confidence: float
+    polygon_iou: float
+    corners: int
+    symmetry: float
+    axis: tuple[float, float]
+
+    def describe(self) -> str:
+        """One line for ``--verbose``."""
+        how = "forced" if self.forced else "chosen from the silhouette"
+        return (f"shape prior {self.name} ({how}, confidence {self.confidence:.2f}): outline a {self.corners}-corner "
+                f"polygon at IoU {self.polygon_iou:.3f}, {100 * self.symmetry:.0f} % mirror-symmetric")
+
+    def as_dict(self) -> dict:
+        """JSON-ready fields."""
+        return {"name": self.name, "forced": self.forced, "confidence": round(self.confidence, 4),
+                "polygon_iou": round(self.polygon_iou, 4), "corners": self.corners,
+                "symmetry": round(self.symmetry, 4)}
+
+
+def _largest_outline(mask: np.ndarray) -> np.ndarray:
+    """(K, 1, 2) int32 outer contour of the largest connected component."""
+    contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    return max(contours, key=cv2.contourArea)
+
+
+def _polygon_fit(mask: np.ndarray) -> tuple[float, int, float]:
+    """(IoU of the simplified outline with the mask, its corner count, solidity of the mask)."""
+    outline = _largest_outline(mask)
+    area = float(mask.sum())
+    polygon = cv2.approxPolyDP(outline, _POLYGON_TOLERANCE * np.sqrt(area), True)
+    filled = np.zeros(mask.shape, np.uint8)
+    cv2.fillPoly(filled, [polygon], 1)
+    filled = filled.astype(bool)
+    iou = float((filled & mask).sum() / max((filled | mask).sum(), 1))
+    hull = cv2.convexHull(outline)
+    solidity = area / max(cv2.contourArea(hull) + 0.5 * cv2.arcLength(hull, True), 1.0)  # pixel-centre outline
+    return iou, len(polygon), min(solidity, 1.0)
+
+
+def _sheared(mask: np.ndarray, tilt: float, row0: float) -> np.ndarray:
+    """The mask with row v read from column ``u + tilt * (v - row0)`` (nearest pixel): a tilted axis stands upright."""
+    dst_to_src = np.float32([[1, tilt, -tilt * row0], [0, 1, 0]])
+    return cv2.warpAffine(mask.astype(np.uint8), dst_to_src, mask.shape[::-1],
+                          flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP, borderValue=0).astype(bool)
+
+
+def _mirror_axis(mask: np.ndarray) -> tuple[float, float, float]:
+    """(column of the axis at the centroid row, tilt, share of the mask inside its mirror image).
+
+    For an upright axis at column c, ``|mask ∩ mirror| = Σ_v (m_v ⋆ m_v)(2c)``, the rows' self-convolution
+    summed: one FFT per tilt tries every axis at half-pixel steps.
+    """
+    rows = np.nonzero(mask.any(axis=1))[0]
+    row0 = float(np.nonzero(mask)[0].mean())
+    width = mask.shape[1]
+    n = 1 << int(np.ceil(np.log2(2 * width)))
+    best = (0.0, 0.0, -1.0)
+    area = float(mask.sum())
+    for tilt in _TILTS:
+        upright = _sheared(mask, tilt, row0)[rows].astype(np.float64)
+        spectrum = np.fft.rfft(upright, n, axis=1)
+        overlap = np.fft.irfft((spectrum * spectrum).sum(axis=0), n)[: 2 * width - 1]  # index 2c
+        index = int(np.argmax(overlap))
+        share = float(overlap[index]) / area
+        if share > best[2] + 1e-9:
+            best = (index / 2.0, float(tilt), share)
+    return best
+
+
+def choose_shape(mask: np.ndarray, shape: str = "auto") -> ShapeChoice:
+    """Pick (or, with ``shape`` named, report) the shape prior of a (H, W) bool silhouette."""
+    mask = np.asarray(mask, dtype=bool)
+    if shape != "auto" and shape not in SHAPES:
+        raise InputError(f"shape must be auto or one of {', '.join(SHAPES)}, got {shape!r}")
+    if not mask.any():
+        raise InputError("target mask is empty")
+    iou, corners, solidity = _polygon_fit(mask)
+    column, tilt, symmetry = _mirror_axis(mask)
+    polygonal = corners <= _MAX_CORNERS and iou >= _MIN_POLYGON_IOU and solidity >= _MIN_SOLIDITY
+    if shape != "auto":
+        name = shape
+    elif polygonal:
+        name = "extrude"
+    elif symmetry >= _MIN_SYMMETRY:
+        name = "revolve"
+    else:
+        name = "inflate"
+    confidence = {"extrude": iou, "revolve": symmetry,
+                  "inflate": 1.0 - max(iou if corners <= _MAX_CORNERS else 0.0, symmetry)}[name]
+    return ShapeChoice(name, shape != "auto", float(np.clip(confidence, 0.0, 1.0)), iou, int(corners), symmetry,
+                       (column, tilt))
+
+
+def inflate_silhouette(mask: np.ndarray) -> np.ndarray:
+    """(H, W) bool mask → (H, W) float32 half-thickness in pixels, 0 outside.
+
+    Solves the Poisson problem ``∇²u = −4`` inside the mask with ``u = 0``
+    outside (5-point Laplacian, scipy.sparse), and takes ``h = sqrt(u)``: for
+    a disc of radius ``R`` the solution is ``u = R² − r²``, so ``h`` is a
+    ball's profile; any other silhouette gets a smooth, rounded volume that
+    meets itself at the outline and is thicker where the shape is wide.
+    """
+    mask = np.asarray(mask, dtype=bool).copy()
+    mask[[0, -1], :] = False  # the image border counts as outside
+    mask[:, [0, -1]] = False
+    out = np.zeros(mask.shape, np.float32)
+    count = int(mask.sum())
+    if count == 0:
+        return out
+    index = np.full(mask.shape, -1, np.int64)
+    index[mask] = np.arange(count)
+    rows, cols = np.nonzero(mask)
+    centre = index[rows, cols]
+    i, j = [centre], [centre]
+    values = [np.full(count, 4.0)]
+    for dv, du in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+        nb = index[rows + dv, cols + du]
+        inside = nb >= 0
+        i.append(centre[inside])
+        j.append(nb[inside])
+        values.append(np.full(int(inside.sum()), -1.0))
+    lap = sparse.csr_matrix((np.concatenate(values), (np.concatenate(i), np.concatenate(j))), shape=(count, count))
+    u = spsolve(lap, np.full(count, 4.0))
+    out[mask] = np.sqrt(np.clip(u, 0.0, None))
+    return out
+
+
+def _revolve(mask: np.ndarray, column: float, tilt: float) -> np.ndarray:
+    """(H, W) half-thickness of the symmetric core as circles' chords; the rest inflated on its own."""
+    h, w = mask.shape
+    rows, cols = np.mgrid[0:h, 0:w]
+    row0 = float(np.nonzero(mask)[0].mean())
+    axis = column + tilt * (rows - row0)  # (H, W) axis column on each row
+    mirrored_cols = np.rint(2 * axis - cols).astype(np.int64)
+    inside = (mirrored_cols >= 0) & (mirrored_cols < w)
+    core = mask.copy()
+    core[inside] &= mask[rows[inside], mirrored_cols[inside]]
+    core[~inside] = False
+    # On each row, the run of the core that holds the axis is the chord; its half-length is R_v.
+    labels, _ = ndimage.label(core, structure=[[0, 0, 0], [1, 1, 1], [0, 0, 0]])
+    axis_col = np.clip(np.rint(axis[:, 0]).astype(np.int64), 0, w - 1)
+    run_on_axis = labels[np.arange(h), axis_col]  # (H,) label of the run on the axis, 0 if none
+    chord = (labels > 0) & (labels == run_on_axis[:, None])
+    radius = 0.5 * chord.sum(axis=1)  # (H,) pixels; the chord's pixels reach 1/2 beyond their centres
+    half = np.sqrt(np.clip(radius[:, None] ** 2 - (cols - axis) ** 2, 0.0, None)) * chord
+    rest = mask & ~chord
+    if rest.any():
+        half = np.maximum(half, inflate_silhouette(rest))
+    return half.astype(np.float32)
+
+
+def _extrude(mask: np.ndarray) -> np.ndarray:
+    """(H, W) half-thickness of the outline pushed back by the short side of its enclosing rectangle."""
+    (_, _), (a, b), _ = cv2.minAreaRect(_largest_outline(mask))
+    half_depth = 0.5 * max(min(a, b), 1.0)
+    rounding = _EDGE_ROUNDING * 2 * half_depth
+    inside = cv2.distanceTransform(np.pad(mask, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1] - 0.5
+    x = np.clip(inside, 0.0, rounding)
+    edge = np.sqrt(np.clip(rounding**2 - (rounding - x) ** 2, 0.0, None))
+    return np.where(mask, half_depth - rounding + edge, 0.0).astype(np.float32)
+
+
+def half_thickness(mask: np.ndarray, choice: ShapeChoice) -> np.ndarray:
+    """(H, W) bool silhouette → (H, W) float32 half-thickness in pixels under the chosen prior, 0 outside."""
+    mask = np.asarray(mask, dtype=bool)
+    if choice.name == "revolve":
+        return _revolve(mask, *choice.axis)
+    if choice.name == "extrude":
+        return _extrude(mask)
+    return inflate_silhouette(mask)

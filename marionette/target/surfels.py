@@ -1,0 +1,254 @@
+"""A lifted silhouette's closed surface, sampled by area into flat Gaussians (surfels).
+
+The surface is given on a grid of cells (one per ``stride`` x ``stride``
+pixels) by a mid-surface depth and a half-thickness: a front sheet
+``mid - half`` on the pixels' rays, a back sheet ``2 half`` behind it along
+the ray to the object's centre, and walls joining them along the outline.
+Depths are set at the cells' corners (the mean over the adjacent inside
+cells, so the outline is as smooth as the prior), and every cell is a
+bilinear patch between its corners; outline corners are pulled in toward
+their cells (``_INSET``).
+
+Each patch gets samples in proportion to its area: a patch is split into
+``k_u x k_v`` sub-patches, ``k`` its 3D edge over the cell's own width (a
+flat cell keeps one sample, a steep one near the outline gets a row of them
+down the slope). Each sample is a Gaussian flattened along the patch
+normal (``_FLATNESS``) and as wide as its sub-patch (``_OVERLAP`` of it, so
+neighbours close), so side views stay sharp and closed.
+
+Colour comes from the photo at the sample's own pixel position, and only
+from object pixels (a mask-normalised blur). A steep patch is seen in the
+photo at a slant: the detail along it is not there, and copying pixels along
+the slope draws stripes ("barcodes") on a side view. Such samples read a
+blurred photo instead, the blur growing with the patch's stretch (its area
+over its footprint), and walls read the most blurred one. The back sheet
+takes the colour of the front pixel it lies behind (a mirror image).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from ..camera import Camera
+from ..gaussians import Gaussians
+from ..geometry import matrix_to_quaternion
+
+__all__ = ["sample_surface"]
+
+# Gaussian standard deviation over sample spacing (neighbours overlap, no gaps), and thickness over width.
+_OVERLAP = 0.6
+# On the outline, narrower: a rim pixel's Gaussian at 0.6 px covers the pixel outside with alpha 0.24, and
+# its sheet, the other sheet and the wall add up to grow the silhouette by a pixel.
+_RIM_OVERLAP = 0.4
+# Share of the way from an outline corner to its inside cells' centres it is moved.
+_INSET = 0.8
+_FLATNESS = 0.2
+# At most this many samples along one patch edge.
+_MAX_SPLIT = 64
+# Blur levels (share of the object's pixel radius) for slanted patches and walls.
+_BLUR_LEVELS = (0.0, 0.01, 0.02, 0.04)
+_WALL_LEVEL = 1
+
+
+class _Texture:
+    """The photo's object pixels at a few blur levels, read bilinearly without background bleeding in."""
+
+    def __init__(self, rgb: np.ndarray, mask: np.ndarray, radius_px: float):
+        weight = mask.astype(np.float32)
+        premultiplied = rgb.astype(np.float32) / 255.0 * weight[..., None]
+        self.levels = []
+        for share in _BLUR_LEVELS:
+            sigma = share * radius_px
+            if sigma < 0.5:
+                self.levels.append((premultiplied, weight))
+            else:
+                self.levels.append((cv2.GaussianBlur(premultiplied, (0, 0), sigma),
+                                    cv2.GaussianBlur(weight, (0, 0), sigma)))
+        self.fallback = rgb[mask].astype(np.float32).mean(axis=0) / 255.0
+
+    def sample(self, u: np.ndarray, v: np.ndarray, level: np.ndarray) -> np.ndarray:
+        """(N,) pixel positions and blur level indices → (N, 3) colours in [0, 1]."""
+        out = np.empty((len(u), 3), np.float32)
+        for index, (colour, weight) in enumerate(self.levels):
+            sel = np.nonzero(level == index)[0]
+            if not len(sel):
+                continue
+            c, w = _bilinear(colour, u[sel], v[sel]), _bilinear(weight[..., None], u[sel], v[sel])[:, 0]
+            out[sel] = np.where(w[:, None] > 1e-3, c / np.maximum(w, 1e-3)[:, None], self.fallback)
+        return np.clip(out, 0.0, 1.0)
+
+
+def _bilinear(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(H, W, C) image read at (N,) pixel positions (clamped to the image) → (N, C)."""
+    h, w = image.shape[:2]
+    u = np.clip(u, 0, w - 1)
+    v = np.clip(v, 0, h - 1)
+    u0 = np.minimum(np.floor(u).astype(np.int64), w - 2) if w > 1 else np.zeros(len(u), np.int64)
+    v0 = np.minimum(np.floor(v).astype(np.int64), h - 2) if h > 1 else np.zeros(len(v), np.int64)
+    fu, fv = (u - u0)[:, None], (v - v0)[:, None]
+    u1, v1 = np.minimum(u0 + 1, w - 1), np.minimum(v0 + 1, h - 1)
+    return ((1 - fv) * ((1 - fu) * image[v0, u0] + fu * image[v0, u1])
+            + fv * ((1 - fu) * image[v1, u0] + fu * image[v1, u1]))
+
+
+def _unproject(camera: Camera, u: np.ndarray, v: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """Pixel positions and camera depths (...) → camera-frame points (..., 3)."""
+    return np.stack([(u - camera.cx) / camera.fx * z, (v - camera.cy) / camera.fy * z, z], axis=-1)
+
+
+def _split(length: np.ndarray, width: np.ndarray) -> np.ndarray:
+    """Samples along an edge of 3D ``length`` on a cell ``width`` wide: the nearest whole number of widths."""
+    return np.clip(np.rint(length / width), 1, _MAX_SPLIT).astype(np.int64)
+
+
+def _sub_grid(ku: np.ndarray, kv: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per patch (P,) split counts → (patch index, a, b) of every sample, ``a, b`` in (0, 1) at sub-patch centres."""
+    counts = ku * kv
+    patch = np.repeat(np.arange(len(ku)), counts)
+    local = np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts)
+    a = (local % ku[patch] + 0.5) / ku[patch]
+    b = (local // ku[patch] + 0.5) / kv[patch]
+    return patch, a, b
+
+
+def _perpendicular(v: np.ndarray) -> np.ndarray:
+    """(N, 3) → (N, 3) unit vectors perpendicular to each ``v`` (any of them; x when ``v`` is zero)."""
+    helper = np.eye(3)[np.argmin(np.abs(v), axis=1)]
+    out = np.cross(v, helper)
+    norm = np.linalg.norm(out, axis=1, keepdims=True)
+    return np.where(norm > 1e-12, out / np.maximum(norm, 1e-300), np.array([1.0, 0.0, 0.0]))
+
+
+def _unit(v: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    """(N, 3) vectors normalised; rows too short to have a direction take ``fallback`` (N, 3)."""
+    norm = np.linalg.norm(v, axis=1, keepdims=True)
+    return np.where(norm > 1e-12, v / np.maximum(norm, 1e-300), fallback)
+
+
+def _frames(e1: np.ndarray, e2: np.ndarray, w1: np.ndarray, w2: np.ndarray, overlap: np.ndarray,
+            rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Patch edge vectors (P, 3) in the camera frame, sample widths along them (P,) and deviation over
+    width (P,) → (world-frame quaternions (P, 4), scales (P, 3)), ``rotation`` (3, 3) camera to world.
+
+    The Gaussian's axes: along ``e1``, across it within the patch, and the normal.
+    """
+    t1 = _unit(e1, _perpendicular(e2))
+    normal = _unit(np.cross(t1, e2), _perpendicular(t1))  # a degenerate patch still gets a rotation
+    t2 = np.cross(normal, t1)
+    axes = np.stack([t1, t2, normal], axis=2)  # columns: local axes in the camera frame
+    width2 = np.abs(np.einsum("ij,ij->i", e2, t2)) / np.maximum(np.linalg.norm(e2, axis=1), 1e-12) * w2
+    tangent = np.stack([w1, np.maximum(width2, 0.25 * w1)], axis=1) * overlap[:, None]
+    scales = np.concatenate([tangent, _FLATNESS * tangent.min(axis=1, keepdims=True)], axis=1)
+    return matrix_to_quaternion(rotation @ axes), scales
+
+
+def sample_surface(image: np.ndarray, mask: np.ndarray, cells: np.ndarray, mid: np.ndarray, half: np.ndarray,
+                   camera: Camera, stride: int, opacity: float, radius_px: float) -> tuple[Gaussians, np.ndarray]:
+    """Surfels of the closed surface over a cell grid, in the camera frame.
+
+    Parameters
+    ----------
+    image : (H, W, 3|4) uint8 photo; mask : (H, W) bool its object pixels.
+    cells : (Hc, Wc) bool, cell (i, j) (centre pixel ``(s//2 + j s, s//2 + i s)``) inside the object.
+    mid, half : (Hc, Wc) float, mid-surface depth and half-thickness of each cell (world units; any
+        value outside).
+    camera : the photo's camera (pinhole; the result is in its frame).
+    stride : int, cell size ``s`` in pixels.
+    opacity : float, of every surfel.
+    radius_px : float, the object's RMS radius in pixels (scales the blur of slanted patches).
+
+    Returns
+    -------
+    (Gaussians, pixel_of): N surfels, and the (N, 2) int32 (u, v) pixel of the cell each came from.
+    """
+    s = stride
+    hc, wc = cells.shape
+    inside = cells.astype(np.float64)
+    # Corner (i, j) sits between cells (i-1, j-1) and (i, j): means over the adjacent cells.
+    pad = lambda a: np.pad(a, 1)  # noqa: E731
+    corner_sum = lambda a: a[:-1, :-1] + a[:-1, 1:] + a[1:, :-1] + a[1:, 1:]  # noqa: E731
+    count = corner_sum(pad(inside))
+    mid_c = corner_sum(pad(np.where(cells, mid, 0.0))) / np.maximum(count, 1)
+    half_c = np.sqrt(corner_sum(pad(np.where(cells, half, 0.0) ** 2)) / np.maximum(count, 1))
+    corner_v, corner_u = np.meshgrid(s // 2 + (np.arange(hc + 1) - 0.5) * s, s // 2 + (np.arange(wc + 1) - 0.5) * s,
+                                     indexing="ij")  # (Hc+1, Wc+1) pixel positions
+    # Corners on the outline move toward their inside cells' centres: the 0.3 px² low-pass of the
+    # rasterizer widens every splat, and the sheets and walls that meet there, seen edge-on, would
+    # otherwise grow the silhouette by a pixel.
+    cell_v, cell_u = np.meshgrid(s // 2 + np.arange(hc) * s, s // 2 + np.arange(wc) * s, indexing="ij")
+    outline = (count > 0) & (count < 4)
+    for grid, centres in ((corner_u, cell_u), (corner_v, cell_v)):
+        inner = corner_sum(pad(np.where(cells, centres, 0.0))) / np.maximum(count, 1)
+        grid[outline] += _INSET * (inner[outline] - grid[outline])
+    texture = _Texture(image[..., :3], mask, radius_px)
+    c2w = np.linalg.inv(camera.world_to_camera)
+    top_level = len(_BLUR_LEVELS) - 1
+    ci, cj = np.nonzero(cells)
+    width = np.maximum(s * (mid[ci, cj] - half[ci, cj]) / camera.fx, 1e-9)  # (P,) a cell's width, world units
+    padded = np.pad(cells, 1)
+    interior = padded[:-2, 1:-1] & padded[2:, 1:-1] & padded[1:-1, :-2] & padded[1:-1, 2:]
+    overlap = np.where(interior[ci, cj], _OVERLAP, _RIM_OVERLAP)  # (P,)
+    means, quats, scales, colours, pixel_of = [], [], [], [], []
+
+    # Corner points (Hc+1, Wc+1, 3): the front sheet on the pixels' rays; the back sheet behind it along
+    # the ray to the object's centre, so the back is as large as the front rather than widened by
+    # perspective (a box's back face projects smaller than its front, as it should).
+    front_c = _unproject(camera, corner_u, corner_v, mid_c - half_c)
+    toward = _unproject(camera, np.mean(cell_u[cells]), np.mean(cell_v[cells]), 1.0)
+    toward /= np.linalg.norm(toward)
+    back_c = front_c + (2.0 * half_c)[..., None] * toward
+    corners_ij = [(ci, cj), (ci, cj + 1), (ci + 1, cj), (ci + 1, cj + 1)]  # a patch's corners (P, 4)
+    u4 = np.stack([corner_u[i, j] for i, j in corners_ij], axis=1)
+    v4 = np.stack([corner_v[i, j] for i, j in corners_ij], axis=1)
+    for sheet in (front_c, back_c):
+        p4 = np.stack([sheet[i, j] for i, j in corners_ij], axis=1)  # (P, 4, 3)
+        e_u = 0.5 * (p4[:, 1] - p4[:, 0] + p4[:, 3] - p4[:, 2])
+        e_v = 0.5 * (p4[:, 2] - p4[:, 0] + p4[:, 3] - p4[:, 1])
+        ku, kv = _split(np.linalg.norm(e_u, axis=1), width), _split(np.linalg.norm(e_v, axis=1), width)
+        patch, a, b = _sub_grid(ku, kv)
+        weights = np.stack([(1 - a) * (1 - b), a * (1 - b), (1 - a) * b, a * b], axis=1)  # (N, 4)
+        means.append(np.einsum("nk,nkc->nc", weights, p4[patch]))
+        q, sc = _frames(e_u, e_v, np.linalg.norm(e_u, axis=1) / ku, np.linalg.norm(e_v, axis=1) / kv, overlap,
+                        c2w[:3, :3])  # one frame per patch, shared by its samples
+        quats.append(q[patch])
+        scales.append(sc[patch])
+        stretch = np.linalg.norm(np.cross(e_u, e_v), axis=1) / width**2  # area over footprint, >= ~1
+        level = np.clip(np.floor(np.log2(np.maximum(stretch, 1.0)) / 2), 0, top_level).astype(np.int64)
+        # Both sheets read the pixel the sample lies on (or behind): the back is the front's mirror image.
+        u, v = (weights * u4[patch]).sum(axis=1), (weights * v4[patch]).sum(axis=1)
+        colours.append(texture.sample(u, v, level[patch]))
+        pixel_of.append(np.stack([s // 2 + cj * s, s // 2 + ci * s], axis=1)[patch])
+
+    # Walls: along every cell edge on the outline, from the front sheet's corners to the back sheet's.
+    for di, dj, (a_i, a_j), (b_i, b_j) in ((-1, 0, (0, 0), (0, 1)), (1, 0, (1, 0), (1, 1)),
+                                          (0, -1, (0, 0), (1, 0)), (0, 1, (0, 1), (1, 1))):
+        on_edge = cells & ~padded[1 + di:1 + di + hc, 1 + dj:1 + dj + wc]
+        ei, ej = np.nonzero(on_edge)
+        if not len(ei):
+            continue
+        end0, end1 = (ei + a_i, ej + a_j), (ei + b_i, ej + b_j)
+        p4 = np.stack([front_c[end0], front_c[end1], back_c[end0], back_c[end1]], axis=1)  # (E, 4, 3)
+        along = 0.5 * (p4[:, 1] - p4[:, 0] + p4[:, 3] - p4[:, 2])
+        down = 0.5 * (p4[:, 2] - p4[:, 0] + p4[:, 3] - p4[:, 1])
+        cell_width = width[np.searchsorted(ci * wc + cj, ei * wc + ej)]
+        ke, kd = _split(np.linalg.norm(along, axis=1), cell_width), _split(np.linalg.norm(down, axis=1), cell_width)
+        patch, a, b = _sub_grid(ke, kd)
+        weights = np.stack([(1 - a) * (1 - b), a * (1 - b), (1 - a) * b, a * b], axis=1)
+        means.append(np.einsum("nk,nkc->nc", weights, p4[patch]))
+        q, sc = _frames(along, down, np.linalg.norm(along, axis=1) / ke, np.linalg.norm(down, axis=1) / kd,
+                        np.full(len(ke), _RIM_OVERLAP), c2w[:3, :3])
+        quats.append(q[patch])
+        scales.append(sc[patch])
+        # The wall's texture is the photo folded in across the outline from the nearer sheet, so its
+        # detail runs across the wall as it does on the front, not as rim pixels drawn out along depth.
+        u_edge = corner_u[end0][patch] + a * (corner_u[end1] - corner_u[end0])[patch]
+        v_edge = corner_v[end0][patch] + a * (corner_v[end1] - corner_v[end0])[patch]
+        fold = np.minimum(b, 1.0 - b) * (np.linalg.norm(down, axis=1) / cell_width * s)[patch]
+        colours.append(texture.sample(u_edge - dj * fold, v_edge - di * fold, np.full(len(patch), _WALL_LEVEL)))
+        pixel_of.append(np.stack([s // 2 + ej * s, s // 2 + ei * s], axis=1)[patch])
+
+    means_cam = np.concatenate(means)
+    gaussians = Gaussians.from_rgb(means_cam @ c2w[:3, :3].T + c2w[:3, 3], np.concatenate(colours),
+                                   np.concatenate(scales), opacity, np.concatenate(quats))
+    return gaussians, np.concatenate(pixel_of).astype(np.int32)
