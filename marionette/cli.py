@@ -321,6 +321,9 @@ TargetDepth = Annotated[Optional[Path], typer.Option(
 TargetShape = Annotated[str, typer.Option(
     "--shape", help="Shape prior of an image target: auto (chosen from its outline), inflate, revolve (pots, "
                     "bottles) or extrude (boxes, appliances).")]
+Polish = Annotated[int, typer.Option(
+    help="Adam steps fitting the lifted target's colours and opacities to the photo (sharper edges; about a "
+         "second per step at 512x512; 0: off).")]
 TargetMask = Annotated[Optional[Path], typer.Option(
     help="Image marking the target object (default: alpha, else found automatically).")]
 PlyDir = Annotated[Optional[Path], typer.Option(help="Also write each frame's Gaussians as DIR/00000.ply ….")]
@@ -352,6 +355,7 @@ class _Playback:
     target_mask: Path | None
     target_depth: Path | None
     shape: str
+    polish: int
     anchor: str
     part_seeds: dict[int, tuple[float, float]] | None
     refine: bool
@@ -361,8 +365,8 @@ class _Playback:
 
 def _playback(output: Path, target: Path, frames, speed, loop, reverse, rotation_scale, translation_scale, fps,
               background, size,
-              camera, camera_amount, camera_path, ply_dir, target_mask, target_depth, shape, anchor, part_seed, refine,
-              preview, splats) -> _Playback:
+              camera, camera_amount, camera_path, ply_dir, target_mask, target_depth, shape, polish, anchor, part_seed,
+              refine, preview, splats) -> _Playback:
     """Check every playback option (before any work starts) and the output paths."""
     _transfer_checks(frames, speed, fps)
     _check_loop(loop)
@@ -385,12 +389,14 @@ def _playback(output: Path, target: Path, frames, speed, loop, reverse, rotation
         raise InputError(f"--anchor must be 'centroid' or 'world', got {anchor!r}")
     if shape != "auto" and shape not in SHAPES:
         raise InputError(f"--shape must be auto or one of {', '.join(SHAPES)}, got {shape!r}")
+    if not 0 <= polish <= 10_000:
+        raise InputError(f"--polish must be a number of steps within 0..10000, got {polish}")
     if target_mask is not None and not target_mask.is_file():
         raise InputError(f"target mask {target_mask} does not exist")
     pipeline.check_target(target, target_mask, target_depth)
     return _Playback(frames, speed, loop, reverse, rotation_scale, translation_scale, fps,
                      _parsed("--background", parse_background, background), _parsed("--size", parse_size, size),
-                     camera, camera_amount, camera_path, ply_dir, target_mask, target_depth, shape, anchor,
+                     camera, camera_amount, camera_path, ply_dir, target_mask, target_depth, shape, polish, anchor,
                      _parsed("--part-seed", parse_part_seeds, part_seed or None), refine, preview, splats)
 
 
@@ -402,7 +408,7 @@ def _transfer_and_render(prior, target: Path, output: Path, play: _Playback, ses
                     else load_camera_path(play.camera_path, output_length(prior.num_frames, play.speed, play.frames)))
     with session.reporter.stage("lifting target", 1) as progress:
         lifted = pipeline.load_target(target, size=play.size, mask=play.target_mask, depth=play.target_depth,
-                                      options=LiftOptions(shape=play.shape), prior=prior)
+                                      options=LiftOptions(shape=play.shape, polish=play.polish), prior=prior)
         progress(1, 1)
     if lifted.shape is not None:
         session.reporter.detail(lifted.shape.describe())
@@ -441,14 +447,13 @@ def transfer(prior: Annotated[Path, typer.Argument(help="SpaT prior .npz.")],
              background: Background = "1,1,1", size: Size = None, camera: CameraMove = "static",
              camera_amount: CameraAmount = None, camera_path: CameraPath = None, ply_dir: PlyDir = None,
              target_mask: TargetMask = None, target_depth: TargetDepth = None, shape: TargetShape = "auto",
-             anchor: Anchor = "centroid", part_seed: PartSeed = None, refine: Refine = True,
+             polish: Polish = 0, anchor: Anchor = "centroid", part_seed: PartSeed = None, refine: Refine = True,
              preview: Preview = None, splats: Splats = None, quiet: Quiet = False, verbose: Verbose = False,
              json_summary: Json = False, config: Config = None) -> None:
     """Apply a SpaT prior to a target image or .ply and render the video."""
     play = _playback(output, target, frames, speed, loop, reverse, rotation_scale, translation_scale, fps,
-                     background, size,
-                     camera, camera_amount, camera_path, ply_dir, target_mask, target_depth, shape, anchor, part_seed,
-                     refine, preview, splats)
+                     background, size, camera, camera_amount, camera_path, ply_dir, target_mask, target_depth, shape,
+                     polish, anchor, part_seed, refine, preview, splats)
     with _session("transfer", quiet, verbose, json_summary) as session:
         _transfer_and_render(read_prior(prior), target, output, play, session)
 
@@ -464,14 +469,13 @@ def run(source: Annotated[Path, typer.Argument(help="Video file or folder of fra
         background: Background = "1,1,1", size: Size = None, camera: CameraMove = "static",
         camera_amount: CameraAmount = None, camera_path: CameraPath = None, ply_dir: PlyDir = None,
         target_mask: TargetMask = None, target_depth: TargetDepth = None, shape: TargetShape = "auto",
-        anchor: Anchor = "centroid", part_seed: PartSeed = None, refine: Refine = True,
+        polish: Polish = 0, anchor: Anchor = "centroid", part_seed: PartSeed = None, refine: Refine = True,
         preview: Preview = None, splats: Splats = None, side_by_side: SideBySide = None, report: Report = None,
         quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False, config: Config = None) -> None:
     """Extract the source's motion and transfer it onto the target in one go."""
     play = _playback(output, target, frames, speed, loop, reverse, rotation_scale, translation_scale, fps,
-                     background, size,
-                     camera, camera_amount, camera_path, ply_dir, target_mask, target_depth, shape, anchor, part_seed,
-                     refine, preview, splats)
+                     background, size, camera, camera_amount, camera_path, ply_dir, target_mask, target_depth, shape,
+                     polish, anchor, part_seed, refine, preview, splats)
     if side_by_side is not None:
         _video_output(side_by_side)
     _output_file(report, ".json", "--report")

@@ -95,6 +95,8 @@ def test_render_command(tmp_path):
     (["render", "{tmp}/none.ply", "--camera", "{tmp}/none.json", "-o", "{tmp}/i.png"], "none.json"),
     (["transfer", "{prior}", "{target}", "-o", "{out}", "--loop", "bounce"], "--loop"),
     (["transfer", "{prior}", "{target}", "-o", "{out}", "--anchor", "moon"], "--anchor"),
+    (["transfer", "{prior}", "{target}", "-o", "{out}", "--shape", "sphere"], "--shape must be auto or one of"),
+    (["transfer", "{prior}", "{target}", "-o", "{out}", "--polish", "-2"], "--polish"),
     (["transfer", "{prior}", "{target}", "-o", "{out}", "--part-seed", "1-3"], "--part-seed"),
     (["transfer", "{prior}", "{target}", "-o", "{out}", "--part-seed", "1:3,4"], "part seed for part 1"),
     (["transfer", "{prior}", "{target}", "-o", "{out}", "--target-mask", "{tmp}/nomask.png"], "nomask.png"),

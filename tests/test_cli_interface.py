@@ -21,6 +21,8 @@ def test_json_summary_lists_outputs_timings_and_figures(tmp_path, prior_file, ta
     assert summary["command"] == "transfer"
     assert summary["outputs"] == {"video": str(out), "preview": str(preview)}
     assert summary["figures"]["target"]["frames"] == 6 and summary["figures"]["target"]["gaussians"] > 100
+    shape = summary["figures"]["target"]["shape"]  # the shape prior chosen for the photo, and why
+    assert shape["name"] in ("inflate", "revolve", "extrude") and not shape["forced"] and 0 <= shape["confidence"] <= 1
     assert {"lifting target", "transfer", "rendering", "total"} <= set(summary["timings"])
     assert summary["timings"]["total"] >= summary["timings"]["rendering"] > 0
     gif = read_video(preview)
@@ -31,7 +33,7 @@ def test_verbose_prints_stage_times_and_quiet_prints_nothing(tmp_path, prior_fil
     args = ["transfer", str(prior_file), str(target_png), "-o", str(tmp_path / "o.mp4"), "--frames", "3"]
     assert main(args + ["--verbose"]) == 0
     err = capsys.readouterr().err
-    assert "rendering" in err and "wrote video" in err and "gaussians" in err
+    assert "rendering" in err and "wrote video" in err and "gaussians" in err and "shape prior" in err
     assert main(args + ["--quiet"]) == 0
     assert capsys.readouterr().err == ""
     assert main(args + ["--quiet", "--verbose"]) == 2

@@ -28,6 +28,7 @@ from ..camera import Camera
 from ..errors import InputError
 from ..gaussians import Gaussians
 from ..geometry import matrix_to_quaternion, quaternion_to_matrix
+from ..optim import Adam
 from ..prior import SpatPrior
 from ..progress import ProgressCallback
 from ..render import render
@@ -157,29 +158,6 @@ def _check_inputs(frames, masks, prior: SpatPrior, frames_used: Sequence[int] | 
     return sorted(used)
 
 
-class _Adam:
-    """Adam over a dict of (N, ...) float arrays; state rows follow the Gaussians through densification."""
-
-    def __init__(self, params: dict[str, np.ndarray], b1: float = 0.9, b2: float = 0.999, eps: float = 1e-15):
-        self.m = {k: np.zeros_like(v, dtype=np.float64) for k, v in params.items()}
-        self.v = {k: np.zeros_like(v, dtype=np.float64) for k, v in params.items()}
-        self.b1, self.b2, self.eps, self.step = b1, b2, eps, 0
-
-    def update(self, params: dict[str, np.ndarray], grads: dict[str, np.ndarray], lrs: dict[str, float]) -> None:
-        self.step += 1
-        c1, c2 = 1 - self.b1 ** self.step, 1 - self.b2 ** self.step
-        for k, g in grads.items():
-            self.m[k] = self.b1 * self.m[k] + (1 - self.b1) * g
-            self.v[k] = self.b2 * self.v[k] + (1 - self.b2) * g * g
-            params[k] -= (lrs[k] * (self.m[k] / c1) / (np.sqrt(self.v[k] / c2) + self.eps)).astype(params[k].dtype)
-
-    def reindex(self, index: np.ndarray, fresh: int) -> None:
-        """Keep rows ``index`` and append ``fresh`` zero rows."""
-        for state in (self.m, self.v):
-            for k, a in state.items():
-                state[k] = np.concatenate([a[index], np.zeros((fresh,) + a.shape[1:])])
-
-
 def _left_matrix(q: np.ndarray) -> np.ndarray:
     """(N, 4) quaternions ``w, x, y, z`` → (N, 4, 4) matrices ``L`` with ``q ⊗ p = L p``."""
     w, x, y, z = q.T
@@ -212,7 +190,7 @@ def _loss_and_grads(params: dict, parts: np.ndarray, view: FitView, poses: np.nd
                   "dc": grads.sh[:, 0].astype(np.float64)}, screen
 
 
-def _densify(params: dict, parts: np.ndarray, adam: _Adam, score: np.ndarray, options: ReconstructOptions,
+def _densify(params: dict, parts: np.ndarray, adam: Adam, score: np.ndarray, options: ReconstructOptions,
              radius: float, rng: np.random.Generator) -> np.ndarray:
     """Prune, then clone or split the highest-scoring Gaussians (3DGS Sec. 5.2), in place; the new parts (N',)."""
     n = len(parts)
@@ -298,7 +276,7 @@ def reconstruct_object(frames, masks, prior: SpatPrior, *, frames_used: Sequence
               "dc": gaussians.sh[:, 0].copy()}
     poses = {t: prior.poses[:, t] for t in visible}
     q_pose = {t: matrix_to_quaternion(prior.poses[:, t, :3, :3]) for t in visible}
-    adam = _Adam(params)
+    adam = Adam(params)
 
     def mean_loss() -> float:
         return float(np.mean([_loss_and_grads(params, parts, v, poses[v.frame], q_pose[v.frame],

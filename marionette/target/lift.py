@@ -20,7 +20,8 @@ from ..camera import Camera
 from ..errors import InputError
 from ..gaussians import Gaussians
 from ..segment import grabcut_mask, salient_mask
-from .shapes import SHAPES, ShapeChoice, choose_shape, half_thickness, inflate_silhouette
+from .shapes import SHAPES, ShapeChoice, choose_shape, inflate_silhouette, shape_depth
+from .polish import polish_reference
 from .surfels import sample_surface
 
 __all__ = ["LiftOptions", "LiftedTarget", "lift_image", "object_mask", "alpha_mask", "inflate_silhouette",
@@ -60,6 +61,10 @@ class LiftOptions:
         Shape prior: ``"auto"`` (chosen from the silhouette,
         :func:`~marionette.target.shapes.choose_shape`) or one of
         :data:`~marionette.target.shapes.SHAPES`.
+    polish : int
+        Adam steps fitting the colours and opacities of the surfels the
+        reference view sees to the photo
+        (:func:`~marionette.target.polish.polish_reference`); 0 skips it.
     """
 
     stride: int = 1
@@ -70,6 +75,7 @@ class LiftOptions:
     relative_depth: float | None = None
     depth: float | None = None
     shape: str = "auto"
+    polish: int = 0
 
 
 @dataclass(frozen=True)
@@ -219,6 +225,8 @@ def lift_image(image: np.ndarray, *, mask: np.ndarray | None = None, camera: Cam
     h_img, w_img = image.shape[:2]
     if options.stride < 1:
         raise InputError(f"stride must be >= 1, got {options.stride}")
+    if not 0 <= options.polish <= 10_000:
+        raise InputError(f"polish must be a number of steps within 0..10000, got {options.polish}")
     if mask is None:
         mask = object_mask(image)
     if mask.shape != (h_img, w_img):
@@ -226,7 +234,8 @@ def lift_image(image: np.ndarray, *, mask: np.ndarray | None = None, camera: Cam
     if not mask.any():
         raise InputError("target mask is empty")
     choice = choose_shape(mask, options.shape)
-    relief = half_thickness(mask, choice) * options.thickness  # (H, W) half-thickness in pixels
+    offset, relief = shape_depth(mask, choice)  # (H, W) mid-surface offset and half-thickness, pixels
+    offset, relief = offset * options.thickness, relief * options.thickness
     if camera is None and options.relative_depth is not None:
         if not (np.isfinite(options.relative_depth) and options.relative_depth > 0):
             raise InputError(f"relative depth must be positive, got {options.relative_depth}")
@@ -240,7 +249,7 @@ def lift_image(image: np.ndarray, *, mask: np.ndarray | None = None, camera: Cam
     z0 = depth_for_radius(mask, f, options.radius) if options.depth is None else float(options.depth)
     # Half-thickness in world units: pixels at z0 are z0 / f world units wide.
     half = relief * (z0 / f)
-    mid = np.full((h_img, w_img), z0) if depth_map is None else _front_from_depth(depth_map, mask, z0, half) + half
+    mid = z0 + offset * (z0 / f) if depth_map is None else _front_from_depth(depth_map, mask, z0, half) + half
 
     s = options.stride
     centre_v, centre_u = np.arange(s // 2, h_img, s), np.arange(s // 2, w_img, s)
@@ -248,4 +257,5 @@ def lift_image(image: np.ndarray, *, mask: np.ndarray | None = None, camera: Cam
     gaussians, pixel_of = sample_surface(image, mask, cells, mid[np.ix_(centre_v, centre_u)],
                                          half[np.ix_(centre_v, centre_u)], camera, s, options.opacity,
                                          pixel_radius(mask))
+    gaussians, _ = polish_reference(gaussians, camera, image, mask, options.polish)
     return LiftedTarget(gaussians, camera, mask, pixel_of, choice)

@@ -1,9 +1,9 @@
 """Shape priors for a single-view lift: what volume a silhouette most likely bounds.
 
 One photo shows one side of an object; its depth must come from a prior.
-Three are offered, each a half-thickness map ``h`` (pixels) about a flat
-mid-surface, so the front surface lies ``h`` before it and the back ``h``
-behind:
+Three are offered, each a half-thickness map ``h`` (pixels) about a
+mid-surface (flat, but for a box seen at an angle), so the front surface lies
+``h`` before it and the back ``h`` behind:
 
 - ``inflate``: the silhouette blown up into a rounded cushion,
   ``h = sqrt(u)`` with ``∇²u = -4`` inside and ``u = 0`` on the outline (a
@@ -15,13 +15,18 @@ behind:
 - ``extrude``: the outline pushed straight back with rounded edges (boxes,
   appliances, books): constant ``h`` away from the outline, a quarter circle
   of radius ``_EDGE_ROUNDING * depth`` at it. The depth is the shorter side
-  of the silhouette's smallest enclosing rectangle.
+  of the silhouette's smallest enclosing rectangle. A hexagonal outline whose
+  opposite sides are parallel and equal is a box seen at an angle: the box
+  itself is rebuilt (:func:`_cuboid`) rather than the hexagon extruded.
 
 :func:`choose_shape` picks one from the silhouette alone: ``extrude`` when
-the outline is a polygon of at most ``_MAX_CORNERS`` corners (it fits within
-``_POLYGON_TOLERANCE`` of the object's size), else ``revolve`` when at least
-``_MIN_SYMMETRY`` of the mask lies in its mirror image about the best
-near-vertical axis, else ``inflate``.
+the outline is a polygon of at most ``_MAX_CORNERS`` corners with straight
+sides (it fits within ``_POLYGON_TOLERANCE`` of the object's size, and nine
+tenths of the outline lie within ``_STRAIGHT`` of the tolerance, or a pixel
+and a quarter, of its sides: a can's elliptical ends bow away from them, a
+box's edges do not), else ``revolve`` when at least ``_MIN_SYMMETRY`` of the
+mask lies in its mirror image about the best near-vertical axis, else
+``inflate``.
 """
 
 from __future__ import annotations
@@ -35,15 +40,20 @@ from scipy.sparse.linalg import spsolve
 
 from ..errors import InputError
 
-__all__ = ["SHAPES", "ShapeChoice", "choose_shape", "half_thickness", "inflate_silhouette"]
+__all__ = ["SHAPES", "ShapeChoice", "choose_shape", "shape_depth", "inflate_silhouette"]
 
 #: Shape prior names accepted by :func:`half_thickness` (``"auto"`` is :func:`choose_shape`'s).
 SHAPES = ("inflate", "revolve", "extrude")
 
-# A polygon approximates the outline within this share of sqrt(area): a circle needs 11 corners at
-# this tolerance, a box seen at any angle at most 6.
+# A polygon approximates the outline within this share of sqrt(area) (at least _MIN_TOLERANCE px): a
+# circle needs 11 corners at this tolerance, a box seen at any angle at most 6 (a few more when small).
 _POLYGON_TOLERANCE = 0.025
-_MAX_CORNERS = 6
+_MIN_TOLERANCE = 2.0
+_MAX_CORNERS = 8
+# Straight sides: the 90th percentile of the outline's distance to the polygon, over the tolerance
+# (pixel steps alone give up to _STRAIGHT_PX). Measured: boxes 0.2-0.4 (0.6-0.8 px), cans and vases 0.5.
+_STRAIGHT = 0.3
+_STRAIGHT_PX = 1.25
 # ...and covers the mask this well (intersection over union), the outline being convex enough.
 _MIN_POLYGON_IOU = 0.95
 _MIN_SOLIDITY = 0.9
@@ -53,6 +63,10 @@ _MIN_SYMMETRY = 0.85
 _TILTS = np.linspace(-0.15, 0.15, 7)
 # Edge radius of an extrusion, as a share of its depth.
 _EDGE_ROUNDING = 0.15
+# A hexagon is a box's outline when each side and its opposite are parallel within this angle (degrees)
+# and their lengths differ by at most this log-ratio (perspective shortens the far sides).
+_PARALLEL_DEG = 35.0
+_LENGTH_RATIO = np.log(1.6)
 
 
 @dataclass(frozen=True)
@@ -103,18 +117,24 @@ def _largest_outline(mask: np.ndarray) -> np.ndarray:
     return max(contours, key=cv2.contourArea)
 
 
-def _polygon_fit(mask: np.ndarray) -> tuple[float, int, float]:
-    """(IoU of the simplified outline with the mask, its corner count, solidity of the mask)."""
+def _polygon_fit(mask: np.ndarray) -> tuple[float, int, float, bool]:
+    """(IoU of the simplified outline with the mask, its corner count, solidity, whether its sides are straight)."""
     outline = _largest_outline(mask)
     area = float(mask.sum())
-    polygon = cv2.approxPolyDP(outline, _POLYGON_TOLERANCE * np.sqrt(area), True)
+    tolerance = max(_POLYGON_TOLERANCE * np.sqrt(area), _MIN_TOLERANCE)
+    polygon = cv2.approxPolyDP(outline, tolerance, True)
     filled = np.zeros(mask.shape, np.uint8)
     cv2.fillPoly(filled, [polygon], 1)
     filled = filled.astype(bool)
     iou = float((filled & mask).sum() / max((filled | mask).sum(), 1))
     hull = cv2.convexHull(outline)
     solidity = area / max(cv2.contourArea(hull) + 0.5 * cv2.arcLength(hull, True), 1.0)  # pixel-centre outline
-    return iou, len(polygon), min(solidity, 1.0)
+    if len(polygon) < 3:
+        return iou, len(polygon), min(solidity, 1.0), False
+    step = max(1, len(outline) // 2000)  # a few thousand outline points are plenty
+    deviation = [abs(cv2.pointPolygonTest(polygon, (float(x), float(y)), True)) for x, y in outline[::step, 0]]
+    straight = float(np.percentile(deviation, 90)) <= max(_STRAIGHT * tolerance, _STRAIGHT_PX)
+    return iou, len(polygon), min(solidity, 1.0), straight
 
 
 def _sheared(mask: np.ndarray, tilt: float, row0: float) -> np.ndarray:
@@ -154,9 +174,9 @@ def choose_shape(mask: np.ndarray, shape: str = "auto") -> ShapeChoice:
         raise InputError(f"shape must be auto or one of {', '.join(SHAPES)}, got {shape!r}")
     if not mask.any():
         raise InputError("target mask is empty")
-    iou, corners, solidity = _polygon_fit(mask)
+    iou, corners, solidity, straight = _polygon_fit(mask)
     column, tilt, symmetry = _mirror_axis(mask)
-    polygonal = corners <= _MAX_CORNERS and iou >= _MIN_POLYGON_IOU and solidity >= _MIN_SOLIDITY
+    polygonal = straight and corners <= _MAX_CORNERS and iou >= _MIN_POLYGON_IOU and solidity >= _MIN_SOLIDITY
     if shape != "auto":
         name = shape
     elif polygonal:
@@ -166,7 +186,7 @@ def choose_shape(mask: np.ndarray, shape: str = "auto") -> ShapeChoice:
     else:
         name = "inflate"
     confidence = {"extrude": iou, "revolve": symmetry,
-                  "inflate": 1.0 - max(iou if corners <= _MAX_CORNERS else 0.0, symmetry)}[name]
+                  "inflate": 1.0 - max(iou if polygonal else 0.0, symmetry)}[name]
     return ShapeChoice(name, shape != "auto", float(np.clip(confidence, 0.0, 1.0)), iou, int(corners), symmetry,
                        (column, tilt))
 
@@ -240,11 +260,74 @@ def _extrude(mask: np.ndarray) -> np.ndarray:
     return np.where(mask, half_depth - rounding + edge, 0.0).astype(np.float32)
 
 
-def half_thickness(mask: np.ndarray, choice: ShapeChoice) -> np.ndarray:
-    """(H, W) bool silhouette → (H, W) float32 half-thickness in pixels under the chosen prior, 0 outside."""
+def _cuboid(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """A box seen at an angle, rebuilt from its hexagonal outline: (offset, half) (H, W) pixels, or None.
+
+    Under (near-)orthographic projection a box's outline is the hexagon whose sides are its three edge
+    vectors ``a, b, c`` and their opposites. The 3D edges are orthogonal, which fixes their depth
+    components: ``a_z b_z = -a·b`` and the two alike, so ``a_z² = -(a·b)(a·c)/(b·c)``. Of the two mirror
+    readings (seen from above or below) the one showing the box's upper face is taken. Each pixel's
+    front and back are where its ray enters and leaves the box.
+    """
+    outline = _largest_outline(mask)
+    tolerance = max(_POLYGON_TOLERANCE * np.sqrt(mask.sum()), _MIN_TOLERANCE)
+    for scale in (1.0, 1.5, 2.0):  # a small box's pixel steps may add a corner at the finest tolerance
+        polygon = cv2.approxPolyDP(outline, scale * tolerance, True)
+        if len(polygon) <= 6:
+            break
+    if len(polygon) != 6:
+        return None
+    corners = polygon[:, 0].astype(np.float64)
+    sides = np.roll(corners, -1, axis=0) - corners  # (6, 2)
+    # Opposite sides parallel and about as long (perspective makes the far ones shorter).
+    length, opposite = np.linalg.norm(sides[:3], axis=1), np.linalg.norm(sides[3:], axis=1)
+    cosine = -np.einsum("ij,ij->i", sides[:3], sides[3:]) / np.maximum(length * opposite, 1e-9)
+    if np.any(cosine < np.cos(np.radians(_PARALLEL_DEG))) or np.any(np.abs(np.log(length / opposite)) > _LENGTH_RATIO):
+        return None
+    a, b, c = 0.5 * (sides[:3] - sides[3:])
+    ab, ac, bc = a @ b, a @ c, b @ c
+    if min(abs(ab), abs(ac), abs(bc)) < 1e-9 or -ab * ac / bc <= 0:
+        return None
+    a_z = np.sqrt(-ab * ac / bc)
+    edges = np.array([[*a, a_z], [*b, -ab / a_z], [*c, -ac / a_z]])  # (3, 3): rows are the box's edges
+    normals = edges / np.linalg.norm(edges, axis=1, keepdims=True)
+    upper = normals[np.argmax(np.abs(normals[:, 1]))]
+    if upper[1] * upper[2] < 0:  # the face toward the image's top must face the camera (y down, z away)
+        edges[:, 2] *= -1
+        normals[:, 2] *= -1
+    centre = corners.mean(axis=0)
+    vs, us = np.nonzero(mask)
+    # Along each pixel's ray the slab |n·(x - centre)| <= |edge| / 2 of each edge direction is an interval in z.
+    lateral = (np.stack([us, vs], axis=1) - centre) @ normals[:, :2].T  # (M, 3)
+    half_lengths = 0.5 * np.linalg.norm(edges, axis=1)
+    nz = normals[:, 2]
+    if np.any(np.abs(nz) < 1e-6):
+        return None
+    ends = np.stack([(-half_lengths - lateral) / nz, (half_lengths - lateral) / nz])  # (2, M, 3)
+    near, far = ends.min(axis=0).max(axis=1), ends.max(axis=0).min(axis=1)  # (M,)
+    inside = far > near
+    if inside.mean() < 0.9:
+        return None
+    offset, half = np.zeros(mask.shape, np.float32), np.zeros(mask.shape, np.float32)
+    offset[vs, us] = np.where(inside, 0.5 * (near + far), 0.0)
+    half[vs, us] = np.where(inside, 0.5 * (far - near), 0.0)
+    # Mask pixels just off the rebuilt box take their nearest box pixel's depths, half a pixel thick.
+    known = np.zeros(mask.shape, bool)
+    known[vs[inside], us[inside]] = True
+    _, (iy, ix) = ndimage.distance_transform_edt(~known, return_indices=True)
+    offset = np.where(mask & ~known, offset[iy, ix], offset)
+    half = np.where(mask & ~known, 0.5, half)
+    return offset.astype(np.float32), half.astype(np.float32)
+
+
+def shape_depth(mask: np.ndarray, choice: ShapeChoice) -> tuple[np.ndarray, np.ndarray]:
+    """(H, W) bool silhouette → (offset, half), (H, W) float32 pixels: the mid-surface's depth offset and the
+    half-thickness about it under the chosen prior (0 outside)."""
     mask = np.asarray(mask, dtype=bool)
+    flat = np.zeros(mask.shape, np.float32)
     if choice.name == "revolve":
-        return _revolve(mask, *choice.axis)
+        return flat, _revolve(mask, *choice.axis)
     if choice.name == "extrude":
-        return _extrude(mask)
-    return inflate_silhouette(mask)
+        box = _cuboid(mask)
+        return box if box is not None else (flat, _extrude(mask))
+    return flat, inflate_silhouette(mask)

@@ -27,6 +27,8 @@ takes the colour of the front pixel it lies behind (a mirror image).
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import cv2
 import numpy as np
 
@@ -143,6 +145,122 @@ def _frames(e1: np.ndarray, e2: np.ndarray, w1: np.ndarray, w2: np.ndarray, over
     return matrix_to_quaternion(rotation @ axes), scales
 
 
+class _Grid(NamedTuple):
+    """The cell grid's corners and its inside cells (P of them)."""
+
+    u: np.ndarray  # (Hc+1, Wc+1) corner pixel positions
+    v: np.ndarray
+    front: np.ndarray  # (Hc+1, Wc+1, 3) corner points of the front sheet, camera frame
+    back: np.ndarray  # (Hc+1, Wc+1, 3) and of the back sheet
+    ci: np.ndarray  # (P,) row and column of each inside cell
+    cj: np.ndarray
+    width: np.ndarray  # (P,) its width on the front sheet, world units
+    overlap: np.ndarray  # (P,) its surfels' deviation over spacing
+
+
+class _Samples(NamedTuple):
+    """N surfels in the camera frame (rotations already in the world frame)."""
+
+    means: np.ndarray  # (N, 3)
+    quats: np.ndarray  # (N, 4)
+    scales: np.ndarray  # (N, 3)
+    colours: np.ndarray  # (N, 3)
+    pixel_of: np.ndarray  # (N, 2)
+
+
+def _corner_grid(cells: np.ndarray, mid: np.ndarray, half: np.ndarray, camera: Camera, s: int) -> _Grid:
+    """Corner positions and points of the two sheets over the (Hc, Wc) cells."""
+    hc, wc = cells.shape
+    # Corner (i, j) sits between cells (i-1, j-1) and (i, j): means over the adjacent inside cells.
+    pad = lambda a: np.pad(a, 1)  # noqa: E731
+    corner_sum = lambda a: a[:-1, :-1] + a[:-1, 1:] + a[1:, :-1] + a[1:, 1:]  # noqa: E731
+    count = corner_sum(pad(cells.astype(np.float64)))
+    mid_c = corner_sum(pad(np.where(cells, mid, 0.0))) / np.maximum(count, 1)
+    half_c = np.sqrt(corner_sum(pad(np.where(cells, half, 0.0) ** 2)) / np.maximum(count, 1))
+    corner_v, corner_u = np.meshgrid(s // 2 + (np.arange(hc + 1) - 0.5) * s, s // 2 + (np.arange(wc + 1) - 0.5) * s,
+                                     indexing="ij")
+    # Corners on the outline move toward their inside cells' centres: the 0.3 px² low-pass of the
+    # rasterizer widens every splat, and the sheets and walls that meet there, seen edge-on, would
+    # otherwise grow the silhouette by a pixel.
+    cell_v, cell_u = np.meshgrid(s // 2 + np.arange(hc) * s, s // 2 + np.arange(wc) * s, indexing="ij")
+    outline = (count > 0) & (count < 4)
+    for grid, centres in ((corner_u, cell_u), (corner_v, cell_v)):
+        inner = corner_sum(pad(np.where(cells, centres, 0.0))) / np.maximum(count, 1)
+        grid[outline] += _INSET * (inner[outline] - grid[outline])
+    # The front sheet on the pixels' rays; the back sheet behind it along the ray to the object's centre,
+    # so the back is as large as the front rather than widened by perspective (a box's back face
+    # projects smaller than its front, as it should).
+    front = _unproject(camera, corner_u, corner_v, mid_c - half_c)
+    toward = _unproject(camera, np.mean(cell_u[cells]), np.mean(cell_v[cells]), 1.0)
+    back = front + (2.0 * half_c)[..., None] * (toward / np.linalg.norm(toward))
+    ci, cj = np.nonzero(cells)
+    padded = np.pad(cells, 1)
+    interior = padded[:-2, 1:-1] & padded[2:, 1:-1] & padded[1:-1, :-2] & padded[1:-1, 2:]
+    return _Grid(corner_u, corner_v, front, back, ci, cj,
+                 np.maximum(s * (mid[ci, cj] - half[ci, cj]) / camera.fx, 1e-9),
+                 np.where(interior[ci, cj], _OVERLAP, _RIM_OVERLAP))
+
+
+def _patches(p4: np.ndarray, width: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                                         np.ndarray, np.ndarray]:
+    """Bilinear patches with corners (P, 4, 3) (ordered 00, 10, 01, 11) split by area on cells ``width`` wide.
+
+    Returns the mean edge vectors (P, 3) ``e_a``, ``e_b``, the splits (P,) ``k_a``, ``k_b``, and per sample
+    (N,) its patch and its bilinear weights (N, 4).
+    """
+    e_a = 0.5 * (p4[:, 1] - p4[:, 0] + p4[:, 3] - p4[:, 2])
+    e_b = 0.5 * (p4[:, 2] - p4[:, 0] + p4[:, 3] - p4[:, 1])
+    k_a, k_b = _split(np.linalg.norm(e_a, axis=1), width), _split(np.linalg.norm(e_b, axis=1), width)
+    patch, a, b = _sub_grid(k_a, k_b)
+    weights = np.stack([(1 - a) * (1 - b), a * (1 - b), (1 - a) * b, a * b], axis=1)
+    return e_a, e_b, k_a, k_b, patch, weights
+
+
+def _sheet(grid: _Grid, points: np.ndarray, texture: _Texture, rotation: np.ndarray, s: int) -> _Samples:
+    """Surfels of one sheet, given its corner points (Hc+1, Wc+1, 3); ``rotation`` camera to world."""
+    ci, cj = grid.ci, grid.cj
+    corners = [(ci, cj), (ci, cj + 1), (ci + 1, cj), (ci + 1, cj + 1)]
+    p4 = np.stack([points[i, j] for i, j in corners], axis=1)  # (P, 4, 3)
+    e_u, e_v, ku, kv, patch, weights = _patches(p4, grid.width)
+    q, sc = _frames(e_u, e_v, np.linalg.norm(e_u, axis=1) / ku, np.linalg.norm(e_v, axis=1) / kv, grid.overlap,
+                    rotation)  # one frame per patch, shared by its samples
+    stretch = np.linalg.norm(np.cross(e_u, e_v), axis=1) / grid.width**2  # area over footprint, >= ~1
+    level = np.clip(np.floor(np.log2(np.maximum(stretch, 1.0)) / 2), 0, len(_BLUR_LEVELS) - 1).astype(np.int64)
+    # Both sheets read the pixel the sample lies on (or behind): the back is the front's mirror image.
+    u = (weights * np.stack([grid.u[i, j] for i, j in corners], axis=1)[patch]).sum(axis=1)
+    v = (weights * np.stack([grid.v[i, j] for i, j in corners], axis=1)[patch]).sum(axis=1)
+    return _Samples(np.einsum("nk,nkc->nc", weights, p4[patch]), q[patch], sc[patch],
+                    texture.sample(u, v, level[patch]), np.stack([s // 2 + cj * s, s // 2 + ci * s], axis=1)[patch])
+
+
+def _walls(grid: _Grid, cells: np.ndarray, texture: _Texture, rotation: np.ndarray, s: int) -> list[_Samples]:
+    """Surfels of the walls: along every cell edge on the outline, from the front sheet's corners to the back's."""
+    hc, wc = cells.shape
+    padded = np.pad(cells, 1)
+    out = []
+    for di, dj, (a_i, a_j), (b_i, b_j) in ((-1, 0, (0, 0), (0, 1)), (1, 0, (1, 0), (1, 1)),
+                                          (0, -1, (0, 0), (1, 0)), (0, 1, (0, 1), (1, 1))):
+        ei, ej = np.nonzero(cells & ~padded[1 + di:1 + di + hc, 1 + dj:1 + dj + wc])
+        if not len(ei):
+            continue
+        end0, end1 = (ei + a_i, ej + a_j), (ei + b_i, ej + b_j)
+        p4 = np.stack([grid.front[end0], grid.front[end1], grid.back[end0], grid.back[end1]], axis=1)  # (E, 4, 3)
+        width = grid.width[np.searchsorted(grid.ci * wc + grid.cj, ei * wc + ej)]
+        along, down, ke, kd, patch, weights = _patches(p4, width)
+        q, sc = _frames(along, down, np.linalg.norm(along, axis=1) / ke, np.linalg.norm(down, axis=1) / kd,
+                        np.full(len(ke), _RIM_OVERLAP), rotation)
+        # The wall's texture is the photo folded in across the outline from the nearer sheet, so its
+        # detail runs across the wall as it does on the front, not as rim pixels drawn out along depth.
+        a, b = weights[:, 1] + weights[:, 3], weights[:, 2] + weights[:, 3]
+        u_edge = grid.u[end0][patch] + a * (grid.u[end1] - grid.u[end0])[patch]
+        v_edge = grid.v[end0][patch] + a * (grid.v[end1] - grid.v[end0])[patch]
+        fold = np.minimum(b, 1.0 - b) * (np.linalg.norm(down, axis=1) / width * s)[patch]
+        out.append(_Samples(np.einsum("nk,nkc->nc", weights, p4[patch]), q[patch], sc[patch],
+                            texture.sample(u_edge - dj * fold, v_edge - di * fold, np.full(len(patch), _WALL_LEVEL)),
+                            np.stack([s // 2 + ej * s, s // 2 + ei * s], axis=1)[patch]))
+    return out
+
+
 def sample_surface(image: np.ndarray, mask: np.ndarray, cells: np.ndarray, mid: np.ndarray, half: np.ndarray,
                    camera: Camera, stride: int, opacity: float, radius_px: float) -> tuple[Gaussians, np.ndarray]:
     """Surfels of the closed surface over a cell grid, in the camera frame.
@@ -162,93 +280,13 @@ def sample_surface(image: np.ndarray, mask: np.ndarray, cells: np.ndarray, mid: 
     -------
     (Gaussians, pixel_of): N surfels, and the (N, 2) int32 (u, v) pixel of the cell each came from.
     """
-    s = stride
-    hc, wc = cells.shape
-    inside = cells.astype(np.float64)
-    # Corner (i, j) sits between cells (i-1, j-1) and (i, j): means over the adjacent cells.
-    pad = lambda a: np.pad(a, 1)  # noqa: E731
-    corner_sum = lambda a: a[:-1, :-1] + a[:-1, 1:] + a[1:, :-1] + a[1:, 1:]  # noqa: E731
-    count = corner_sum(pad(inside))
-    mid_c = corner_sum(pad(np.where(cells, mid, 0.0))) / np.maximum(count, 1)
-    half_c = np.sqrt(corner_sum(pad(np.where(cells, half, 0.0) ** 2)) / np.maximum(count, 1))
-    corner_v, corner_u = np.meshgrid(s // 2 + (np.arange(hc + 1) - 0.5) * s, s // 2 + (np.arange(wc + 1) - 0.5) * s,
-                                     indexing="ij")  # (Hc+1, Wc+1) pixel positions
-    # Corners on the outline move toward their inside cells' centres: the 0.3 px² low-pass of the
-    # rasterizer widens every splat, and the sheets and walls that meet there, seen edge-on, would
-    # otherwise grow the silhouette by a pixel.
-    cell_v, cell_u = np.meshgrid(s // 2 + np.arange(hc) * s, s // 2 + np.arange(wc) * s, indexing="ij")
-    outline = (count > 0) & (count < 4)
-    for grid, centres in ((corner_u, cell_u), (corner_v, cell_v)):
-        inner = corner_sum(pad(np.where(cells, centres, 0.0))) / np.maximum(count, 1)
-        grid[outline] += _INSET * (inner[outline] - grid[outline])
+    grid = _corner_grid(cells, mid, half, camera, stride)
     texture = _Texture(image[..., :3], mask, radius_px)
     c2w = np.linalg.inv(camera.world_to_camera)
-    top_level = len(_BLUR_LEVELS) - 1
-    ci, cj = np.nonzero(cells)
-    width = np.maximum(s * (mid[ci, cj] - half[ci, cj]) / camera.fx, 1e-9)  # (P,) a cell's width, world units
-    padded = np.pad(cells, 1)
-    interior = padded[:-2, 1:-1] & padded[2:, 1:-1] & padded[1:-1, :-2] & padded[1:-1, 2:]
-    overlap = np.where(interior[ci, cj], _OVERLAP, _RIM_OVERLAP)  # (P,)
-    means, quats, scales, colours, pixel_of = [], [], [], [], []
-
-    # Corner points (Hc+1, Wc+1, 3): the front sheet on the pixels' rays; the back sheet behind it along
-    # the ray to the object's centre, so the back is as large as the front rather than widened by
-    # perspective (a box's back face projects smaller than its front, as it should).
-    front_c = _unproject(camera, corner_u, corner_v, mid_c - half_c)
-    toward = _unproject(camera, np.mean(cell_u[cells]), np.mean(cell_v[cells]), 1.0)
-    toward /= np.linalg.norm(toward)
-    back_c = front_c + (2.0 * half_c)[..., None] * toward
-    corners_ij = [(ci, cj), (ci, cj + 1), (ci + 1, cj), (ci + 1, cj + 1)]  # a patch's corners (P, 4)
-    u4 = np.stack([corner_u[i, j] for i, j in corners_ij], axis=1)
-    v4 = np.stack([corner_v[i, j] for i, j in corners_ij], axis=1)
-    for sheet in (front_c, back_c):
-        p4 = np.stack([sheet[i, j] for i, j in corners_ij], axis=1)  # (P, 4, 3)
-        e_u = 0.5 * (p4[:, 1] - p4[:, 0] + p4[:, 3] - p4[:, 2])
-        e_v = 0.5 * (p4[:, 2] - p4[:, 0] + p4[:, 3] - p4[:, 1])
-        ku, kv = _split(np.linalg.norm(e_u, axis=1), width), _split(np.linalg.norm(e_v, axis=1), width)
-        patch, a, b = _sub_grid(ku, kv)
-        weights = np.stack([(1 - a) * (1 - b), a * (1 - b), (1 - a) * b, a * b], axis=1)  # (N, 4)
-        means.append(np.einsum("nk,nkc->nc", weights, p4[patch]))
-        q, sc = _frames(e_u, e_v, np.linalg.norm(e_u, axis=1) / ku, np.linalg.norm(e_v, axis=1) / kv, overlap,
-                        c2w[:3, :3])  # one frame per patch, shared by its samples
-        quats.append(q[patch])
-        scales.append(sc[patch])
-        stretch = np.linalg.norm(np.cross(e_u, e_v), axis=1) / width**2  # area over footprint, >= ~1
-        level = np.clip(np.floor(np.log2(np.maximum(stretch, 1.0)) / 2), 0, top_level).astype(np.int64)
-        # Both sheets read the pixel the sample lies on (or behind): the back is the front's mirror image.
-        u, v = (weights * u4[patch]).sum(axis=1), (weights * v4[patch]).sum(axis=1)
-        colours.append(texture.sample(u, v, level[patch]))
-        pixel_of.append(np.stack([s // 2 + cj * s, s // 2 + ci * s], axis=1)[patch])
-
-    # Walls: along every cell edge on the outline, from the front sheet's corners to the back sheet's.
-    for di, dj, (a_i, a_j), (b_i, b_j) in ((-1, 0, (0, 0), (0, 1)), (1, 0, (1, 0), (1, 1)),
-                                          (0, -1, (0, 0), (1, 0)), (0, 1, (0, 1), (1, 1))):
-        on_edge = cells & ~padded[1 + di:1 + di + hc, 1 + dj:1 + dj + wc]
-        ei, ej = np.nonzero(on_edge)
-        if not len(ei):
-            continue
-        end0, end1 = (ei + a_i, ej + a_j), (ei + b_i, ej + b_j)
-        p4 = np.stack([front_c[end0], front_c[end1], back_c[end0], back_c[end1]], axis=1)  # (E, 4, 3)
-        along = 0.5 * (p4[:, 1] - p4[:, 0] + p4[:, 3] - p4[:, 2])
-        down = 0.5 * (p4[:, 2] - p4[:, 0] + p4[:, 3] - p4[:, 1])
-        cell_width = width[np.searchsorted(ci * wc + cj, ei * wc + ej)]
-        ke, kd = _split(np.linalg.norm(along, axis=1), cell_width), _split(np.linalg.norm(down, axis=1), cell_width)
-        patch, a, b = _sub_grid(ke, kd)
-        weights = np.stack([(1 - a) * (1 - b), a * (1 - b), (1 - a) * b, a * b], axis=1)
-        means.append(np.einsum("nk,nkc->nc", weights, p4[patch]))
-        q, sc = _frames(along, down, np.linalg.norm(along, axis=1) / ke, np.linalg.norm(down, axis=1) / kd,
-                        np.full(len(ke), _RIM_OVERLAP), c2w[:3, :3])
-        quats.append(q[patch])
-        scales.append(sc[patch])
-        # The wall's texture is the photo folded in across the outline from the nearer sheet, so its
-        # detail runs across the wall as it does on the front, not as rim pixels drawn out along depth.
-        u_edge = corner_u[end0][patch] + a * (corner_u[end1] - corner_u[end0])[patch]
-        v_edge = corner_v[end0][patch] + a * (corner_v[end1] - corner_v[end0])[patch]
-        fold = np.minimum(b, 1.0 - b) * (np.linalg.norm(down, axis=1) / cell_width * s)[patch]
-        colours.append(texture.sample(u_edge - dj * fold, v_edge - di * fold, np.full(len(patch), _WALL_LEVEL)))
-        pixel_of.append(np.stack([s // 2 + ej * s, s // 2 + ei * s], axis=1)[patch])
-
-    means_cam = np.concatenate(means)
-    gaussians = Gaussians.from_rgb(means_cam @ c2w[:3, :3].T + c2w[:3, 3], np.concatenate(colours),
-                                   np.concatenate(scales), opacity, np.concatenate(quats))
-    return gaussians, np.concatenate(pixel_of).astype(np.int32)
+    parts = [_sheet(grid, grid.front, texture, c2w[:3, :3], stride),
+             _sheet(grid, grid.back, texture, c2w[:3, :3], stride),
+             *_walls(grid, cells, texture, c2w[:3, :3], stride)]
+    joined = _Samples(*(np.concatenate(column) for column in zip(*parts)))
+    gaussians = Gaussians.from_rgb(joined.means @ c2w[:3, :3].T + c2w[:3, 3], joined.colours, joined.scales,
+                                   opacity, joined.quats)
+    return gaussians, joined.pixel_of.astype(np.int32)

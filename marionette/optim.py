@@ -1,0 +1,30 @@
+"""Adam (Kingma & Ba, "Adam: a method for stochastic optimization", ICLR 2015) over named arrays."""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["Adam"]
+
+
+class Adam:
+    """Adam over a dict of (N, ...) float arrays; state rows follow the Gaussians through densification."""
+
+    def __init__(self, params: dict[str, np.ndarray], b1: float = 0.9, b2: float = 0.999, eps: float = 1e-15):
+        self.m = {k: np.zeros_like(v, dtype=np.float64) for k, v in params.items()}
+        self.v = {k: np.zeros_like(v, dtype=np.float64) for k, v in params.items()}
+        self.b1, self.b2, self.eps, self.step = b1, b2, eps, 0
+
+    def update(self, params: dict[str, np.ndarray], grads: dict[str, np.ndarray], lrs: dict[str, float]) -> None:
+        self.step += 1
+        c1, c2 = 1 - self.b1 ** self.step, 1 - self.b2 ** self.step
+        for k, g in grads.items():
+            self.m[k] = self.b1 * self.m[k] + (1 - self.b1) * g
+            self.v[k] = self.b2 * self.v[k] + (1 - self.b2) * g * g
+            params[k] -= (lrs[k] * (self.m[k] / c1) / (np.sqrt(self.v[k] / c2) + self.eps)).astype(params[k].dtype)
+
+    def reindex(self, index: np.ndarray, fresh: int) -> None:
+        """Keep rows ``index`` and append ``fresh`` zero rows."""
+        for state in (self.m, self.v):
+            for k, a in state.items():
+                state[k] = np.concatenate([a[index], np.zeros((fresh,) + a.shape[1:])])
