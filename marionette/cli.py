@@ -31,7 +31,7 @@ from .io.atomic import StagedOutputs, check_output_dir, check_output_folder, che
 from .io.video import DEFAULT_MAX_PIXELS
 from .options import parse_background, parse_part_seeds, parse_parts, parse_size
 from .plot import plot_prior
-from .progress import Reporter
+from .progress import Reporter, interrupt_requested
 from .render import render
 from .render.camera_path import CAMERA_MOVES, check_camera_move, load_camera_path
 from .source import ExtractOptions
@@ -712,8 +712,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except KeyboardInterrupt:
         code = 130
-    except Exception as e:  # Ctrl-C inside a compiled library surfaces wrapped (numba: SystemError)
-        if not _interrupted(e):
+    except Exception as e:
+        # Ctrl-C inside a compiled library surfaces wrapped (numba: SystemError), or as the broken pipe of the
+        # ffmpeg it stopped too.
+        if not (_interrupted(e) or interrupt_requested()):
             raise
         code = 130
     if code == 130:  # typer turns Ctrl-C into exit code 130

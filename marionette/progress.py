@@ -1,19 +1,65 @@
-"""Progress reporting: rich bars and messages on stderr, stage timings, or silence."""
+"""Progress reporting: rich bars and messages on stderr, stage timings, or silence.
+
+Ctrl-C during a stage is deferred: the signal only sets a flag, and the stage
+raises :class:`KeyboardInterrupt` at its next progress call or at its end.
+The default handler would raise it wherever Python next runs, which can be
+inside a call back from compiled (numba) code or half-way through a pipe
+write, and an interrupted parallel kernel has crashed the process (SIGSEGV)
+instead of exiting with code 130.
+"""
 
 from __future__ import annotations
 
 import contextlib
+import signal
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator
 
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-__all__ = ["Reporter", "ProgressCallback"]
+__all__ = ["Reporter", "ProgressCallback", "interrupt_requested"]
 
 #: ``callback(done, total)``, called as work advances.
 ProgressCallback = Callable[[int, int], None]
+
+_interrupt = threading.Event()
+
+
+def interrupt_requested() -> bool:
+    """Whether Ctrl-C arrived during a stage (the error that follows is the interruption)."""
+    return _interrupt.is_set()
+
+
+@contextlib.contextmanager
+def _deferred_interrupt() -> Iterator[None]:
+    """SIGINT only sets the flag while this runs (main thread, Python's own handler in place; else a no-op)."""
+    if (threading.current_thread() is not threading.main_thread()
+            or signal.getsignal(signal.SIGINT) is not signal.default_int_handler):
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: _interrupt.set())
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _raise_if_interrupted() -> None:
+    """Raise the KeyboardInterrupt of a deferred Ctrl-C (once: the flag is cleared)."""
+    if _interrupt.is_set():
+        _interrupt.clear()
+        raise KeyboardInterrupt
+
+
+def _checked(callback: ProgressCallback) -> ProgressCallback:
+    """``callback`` that first raises KeyboardInterrupt when Ctrl-C has arrived."""
+    def progress(done: int, total: int) -> None:
+        _raise_if_interrupted()
+        callback(done, total)
+    return progress
 
 
 class Reporter:
@@ -48,13 +94,15 @@ class Reporter:
         """
         start = time.perf_counter()
         try:
-            if self.quiet or not sys.stderr:
-                yield lambda done, total: None
-            elif self.console.is_terminal:
-                yield from self._bar(description, total)
-            else:
-                yield lambda done, total: None
-                self.message(f"{description:<22} done in {time.perf_counter() - start:.1f} s")
+            with _deferred_interrupt():
+                if self.quiet or not sys.stderr:
+                    yield _checked(lambda done, total: None)
+                elif self.console.is_terminal:
+                    yield from self._bar(description, total)
+                else:
+                    yield _checked(lambda done, total: None)
+                    self.message(f"{description:<22} done in {time.perf_counter() - start:.1f} s")
+            _raise_if_interrupted()
         finally:
             elapsed = time.perf_counter() - start
             self.timings[description] = self.timings.get(description, 0.0) + elapsed
@@ -70,7 +118,7 @@ class Reporter:
                 bar.update(task, completed=done, total=total_)
 
             try:
-                yield update
+                yield _checked(update)
             except BaseException:
                 bar.live.transient = True  # a failed stage leaves no half-full bar above the error line
                 raise
