@@ -89,14 +89,15 @@ def test_an_extrusion_is_flat_with_rounded_edges():
     assert half[60, 30] > 0.5 * half[60, 80]  # a wall remains: rounded edges, not a cushion
 
 
-def test_a_box_seen_at_an_angle_is_rebuilt_as_a_box_not_an_extruded_hexagon():
+@pytest.mark.parametrize("pitch", [20, 0])  # from above; level (perspective alone bends the outline)
+def test_a_box_seen_at_an_angle_is_rebuilt_as_a_box_not_an_extruded_hexagon(pitch):
     from marionette.geometry import axis_angle_to_matrix, matrix_to_quaternion
     from marionette.render import render
     from marionette.synthetic import object_view
     from marionette.target.lift import LiftOptions, lift_image
 
     def view(turn):
-        return object_view("box", size=(128, 128), seed=0, yaw_deg=30, pitch_deg=20, fov_deg=30, turn_deg=turn)
+        return object_view("box", size=(128, 128), seed=0, yaw_deg=30, pitch_deg=pitch, fov_deg=30, turn_deg=turn)
 
     photo, camera, centre = view(0)
     mask = photo[..., 3] > 0
@@ -104,9 +105,9 @@ def test_a_box_seen_at_an_angle_is_rebuilt_as_a_box_not_an_extruded_hexagon():
     assert np.ptp(offset[mask]) > 10  # the faces slant: the mid-surface is no plane
     lifted = lift_image(photo, camera=camera, options=LiftOptions(depth=float(centre[2])))
     assert lifted.shape.name == "extrude"
-    r = axis_angle_to_matrix([0.0, np.radians(60), 0.0])
+    r = axis_angle_to_matrix([0.0, np.radians(90), 0.0])
     g = lifted.gaussians
     turned = g.with_means((g.means - centre) @ r.T + centre).turned(matrix_to_quaternion(r))
     seen = render(turned, camera).alpha > 0.5
-    truth = view(60)[0][..., 3] > 0
-    assert (seen & truth).sum() / (seen | truth).sum() > 0.84  # measured 0.88; the hexagon pushed straight back: 0.59
+    truth = view(90)[0][..., 3] > 0
+    assert (seen & truth).sum() / (seen | truth).sum() > 0.88  # measured 0.92, 0.95; the hexagon pushed back: 0.71, 0.75

@@ -63,10 +63,9 @@ _MIN_SYMMETRY = 0.85
 _TILTS = np.linspace(-0.15, 0.15, 7)
 # Edge radius of an extrusion, as a share of its depth.
 _EDGE_ROUNDING = 0.15
-# A hexagon is a box's outline when each side and its opposite are parallel within this angle (degrees)
-# and their lengths differ by at most this log-ratio (perspective shortens the far sides).
-_PARALLEL_DEG = 35.0
-_LENGTH_RATIO = np.log(1.6)
+# A box's outline is read as seen level when pairing the top chain's sides with the bottom's in the same
+# order matches their lengths better by this much (sum of |log length ratio|).
+_LEVEL_MARGIN = 0.1
 
 
 @dataclass(frozen=True)
@@ -260,14 +259,58 @@ def _extrude(mask: np.ndarray) -> np.ndarray:
     return np.where(mask, half_depth - rounding + edge, 0.0).astype(np.float32)
 
 
+def _box_edges(corners: np.ndarray) -> np.ndarray | None:
+    """A box's three edges in 3D (3, 3), pixel units, from its hexagonal outline (6, 2), or None.
+
+    The outline's two most vertical sides are the box's outer vertical edge ``c``; the others form a top
+    and a bottom chain of two sides each, left to right. Seen from above or below, the bottom chain runs
+    the top's sides in the other order (the outline of a box is then the hexagon ``a, b, c, -a, -b, -c``),
+    and orthogonal edges fix the depths: ``a_z b_z = -a·b`` and the two alike, so
+    ``a_z² = -(a·b)(a·c)/(b·c)``; of its two mirror readings the one showing the upper face is taken. Seen
+    level, both chains run alike (perspective bends them at the near vertical edge), ``c`` is
+    perpendicular to ``a`` and ``b`` and the products are 0/0: then ``c_z = 0`` and the two faces beside
+    the near edge turn away from it equally, ``-a_z = b_z = sqrt(a·b)`` (a box turned 30° with sides 1.7
+    and 1.05 has 0.85 and 0.91).
+    """
+    sides = np.roll(corners, -1, axis=0) - corners  # (6, 2), side k from corner k to k + 1
+    steep = np.abs(sides[:, 1]) / np.maximum(np.linalg.norm(sides, axis=1), 1e-9)
+    first = int(np.argmax(steep[:3] + steep[3:]))  # the pair k, k + 3 of most vertical opposite sides
+    if min(steep[first], steep[first + 3]) < 0.7:
+        return None
+    order = np.roll(np.arange(6), -first)  # sides: vertical, chain, chain, vertical, chain, chain
+    chains = [sides[order[1:3]], sides[order[4:6]]]
+    # Left to right (a chain walked right to left is reversed and negated); the top one's middle corner is higher.
+    chains = [ch if ch[:, 0].sum() > 0 else -ch[::-1] for ch in chains]
+    top, bottom = chains if corners[order[2], 1] < corners[order[5], 1] else chains[::-1]
+    down = [side if side[1] >= 0 else -side for side in (sides[order[0]], sides[order[3]])]
+    vertical = 0.5 * (down[0] + down[1])
+    # Which side of the bottom chain is which of the top's: the same edge projects to about the same length.
+    length = lambda u, v: abs(np.log(np.linalg.norm(u) / max(np.linalg.norm(v), 1e-9)))  # noqa: E731
+    same = length(top[0], bottom[0]) + length(top[1], bottom[1])
+    swapped = length(top[0], bottom[1]) + length(top[1], bottom[0])
+    if swapped < same + _LEVEL_MARGIN:  # seen from above or below (or alike either way: try that first)
+        a, b, c = 0.5 * (top[0] + bottom[1]), 0.5 * (top[1] + bottom[0]), vertical
+        ab, ac, bc = a @ b, a @ c, b @ c
+        if min(abs(ab), abs(ac), abs(bc)) > 1e-9 and -ab * ac / bc > 0:
+            a_z = np.sqrt(-ab * ac / bc)
+            edges = np.array([[*a, a_z], [*b, -ab / a_z], [*c, -ac / a_z]])
+            normals = edges / np.linalg.norm(edges, axis=1, keepdims=True)
+            upper = normals[np.argmax(np.abs(normals[:, 1]))]
+            if upper[1] * upper[2] < 0:  # the face toward the image's top faces the camera (y down, z away)
+                edges[:, 2] *= -1
+            return edges
+    a, b = 0.5 * (top[0] + bottom[0]), 0.5 * (top[1] + bottom[1])
+    if a @ b <= 0:
+        return None
+    depth = np.sqrt(a @ b)
+    return np.array([[*a, -depth], [*b, depth], [*vertical, 0.0]])
+
+
 def _cuboid(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     """A box seen at an angle, rebuilt from its hexagonal outline: (offset, half) (H, W) pixels, or None.
 
-    Under (near-)orthographic projection a box's outline is the hexagon whose sides are its three edge
-    vectors ``a, b, c`` and their opposites. The 3D edges are orthogonal, which fixes their depth
-    components: ``a_z b_z = -a·b`` and the two alike, so ``a_z² = -(a·b)(a·c)/(b·c)``. Of the two mirror
-    readings (seen from above or below) the one showing the box's upper face is taken. Each pixel's
-    front and back are where its ray enters and leaves the box.
+    The box's edges come from :func:`_box_edges`; each pixel's front and back are where its ray (taken
+    orthographic) enters and leaves the box.
     """
     outline = _largest_outline(mask)
     tolerance = max(_POLYGON_TOLERANCE * np.sqrt(mask.sum()), _MIN_TOLERANCE)
@@ -278,32 +321,22 @@ def _cuboid(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     if len(polygon) != 6:
         return None
     corners = polygon[:, 0].astype(np.float64)
-    sides = np.roll(corners, -1, axis=0) - corners  # (6, 2)
-    # Opposite sides parallel and about as long (perspective makes the far ones shorter).
-    length, opposite = np.linalg.norm(sides[:3], axis=1), np.linalg.norm(sides[3:], axis=1)
-    cosine = -np.einsum("ij,ij->i", sides[:3], sides[3:]) / np.maximum(length * opposite, 1e-9)
-    if np.any(cosine < np.cos(np.radians(_PARALLEL_DEG))) or np.any(np.abs(np.log(length / opposite)) > _LENGTH_RATIO):
+    edges = _box_edges(corners)
+    if edges is None:
         return None
-    a, b, c = 0.5 * (sides[:3] - sides[3:])
-    ab, ac, bc = a @ b, a @ c, b @ c
-    if min(abs(ab), abs(ac), abs(bc)) < 1e-9 or -ab * ac / bc <= 0:
-        return None
-    a_z = np.sqrt(-ab * ac / bc)
-    edges = np.array([[*a, a_z], [*b, -ab / a_z], [*c, -ac / a_z]])  # (3, 3): rows are the box's edges
     normals = edges / np.linalg.norm(edges, axis=1, keepdims=True)
-    upper = normals[np.argmax(np.abs(normals[:, 1]))]
-    if upper[1] * upper[2] < 0:  # the face toward the image's top must face the camera (y down, z away)
-        edges[:, 2] *= -1
-        normals[:, 2] *= -1
     centre = corners.mean(axis=0)
     vs, us = np.nonzero(mask)
     # Along each pixel's ray the slab |n·(x - centre)| <= |edge| / 2 of each edge direction is an interval in z.
     lateral = (np.stack([us, vs], axis=1) - centre) @ normals[:, :2].T  # (M, 3)
     half_lengths = 0.5 * np.linalg.norm(edges, axis=1)
     nz = normals[:, 2]
-    if np.any(np.abs(nz) < 1e-6):
-        return None
-    ends = np.stack([(-half_lengths - lateral) / nz, (half_lengths - lateral) / nz])  # (2, M, 3)
+    slanted = np.abs(nz) > 1e-6  # an edge across the view bounds z; one along the image (a level box's
+    with np.errstate(divide="ignore", invalid="ignore"):  # vertical edge) only bounds the pixels
+        ends = np.stack([(-half_lengths - lateral) / nz, (half_lengths - lateral) / nz])  # (2, M, 3)
+    within = np.abs(lateral) <= half_lengths
+    ends[0] = np.where(slanted, ends[0], np.where(within, -np.inf, np.inf))
+    ends[1] = np.where(slanted, ends[1], np.where(within, np.inf, -np.inf))
     near, far = ends.min(axis=0).max(axis=1), ends.max(axis=0).min(axis=1)  # (M,)
     inside = far > near
     if inside.mean() < 0.9:
