@@ -158,6 +158,7 @@ def self_transfer(out: Path) -> dict[str, dict[str, float]]:
     from marionette.eval import EVAL_EXTRACT, eval_self
 
     rows = {}
+    out.mkdir(parents=True, exist_ok=True)
     for name, (clip, parts) in CLIPS.items():
         folder = VIDEOS / clip
         if not (folder / "frames").is_dir():

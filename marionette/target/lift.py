@@ -234,7 +234,7 @@ def lift_image(image: np.ndarray, *, mask: np.ndarray | None = None, camera: Cam
     if not mask.any():
         raise InputError("target mask is empty")
     choice = choose_shape(mask, options.shape)
-    offset, relief = shape_depth(mask, choice)  # (H, W) mid-surface offset and half-thickness, pixels
+    offset, relief, pieces = shape_depth(mask, choice)  # (H, W) mid-surface offset, half-thickness (px), pieces
     offset, relief = offset * options.thickness, relief * options.thickness
     if camera is None and options.relative_depth is not None:
         if not (np.isfinite(options.relative_depth) and options.relative_depth > 0):
@@ -253,7 +253,7 @@ def lift_image(image: np.ndarray, *, mask: np.ndarray | None = None, camera: Cam
 
     s = options.stride
     centre_v, centre_u = np.arange(s // 2, h_img, s), np.arange(s // 2, w_img, s)
-    cells = mask[np.ix_(centre_v, centre_u)]
+    cells = pieces[np.ix_(centre_v, centre_u)]
     gaussians, pixel_of = sample_surface(image, mask, cells, mid[np.ix_(centre_v, centre_u)],
                                          half[np.ix_(centre_v, centre_u)], camera, s, options.opacity,
                                          pixel_radius(mask))

@@ -32,6 +32,7 @@ mask lies in its mirror image about the best near-vertical axis, else
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -40,7 +41,7 @@ from scipy.sparse.linalg import spsolve
 
 from ..errors import InputError
 
-__all__ = ["SHAPES", "ShapeChoice", "choose_shape", "shape_depth", "inflate_silhouette"]
+__all__ = ["SHAPES", "ShapeChoice", "ShapeDepth", "choose_shape", "shape_depth", "inflate_silhouette"]
 
 #: Shape prior names accepted by :func:`half_thickness` (``"auto"`` is :func:`choose_shape`'s).
 SHAPES = ("inflate", "revolve", "extrude")
@@ -61,6 +62,8 @@ _MIN_SOLIDITY = 0.9
 _MIN_SYMMETRY = 0.85
 # Axis tilts tried, as horizontal shift per row (±0.15: about ±8.5 degrees).
 _TILTS = np.linspace(-0.15, 0.15, 7)
+# Parts thinner than about twice this share of sqrt(area) are appendages of a body of revolution.
+_APPENDAGE = 0.06
 # Edge radius of an extrusion, as a share of its depth.
 _EDGE_ROUNDING = 0.15
 # A box's outline is read as seen level when pairing the top chain's sides with the bottom's in the same
@@ -224,16 +227,25 @@ def inflate_silhouette(mask: np.ndarray) -> np.ndarray:
     return out
 
 
-def _revolve(mask: np.ndarray, column: float, tilt: float) -> np.ndarray:
-    """(H, W) half-thickness of the symmetric core as circles' chords; the rest inflated on its own."""
+def _revolve(mask: np.ndarray, column: float, tilt: float) -> tuple[np.ndarray, np.ndarray]:
+    """(H, W) half-thickness of the symmetric core as circles' chords, the rest inflated on its own, and the
+    pieces (H, W) int32: 1 the body of revolution, 2… each connected piece of the rest."""
     h, w = mask.shape
     rows, cols = np.mgrid[0:h, 0:w]
     row0 = float(np.nonzero(mask)[0].mean())
     axis = column + tilt * (rows - row0)  # (H, W) axis column on each row
+    # The body: the mask opened by a disc, which cuts off thin appendages (a handle and a spout whose
+    # mirror images overlap would otherwise join the body's rows into one wide chord, a disc like a brim).
+    radius_px = max(2, int(round(_APPENDAGE * np.sqrt(mask.sum()))))
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius_px + 1,) * 2)
+    body = cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_OPEN, disc).astype(bool)
+    count, labels = cv2.connectedComponents(body.astype(np.uint8), connectivity=4)
+    if count > 2:
+        body = labels == 1 + np.argmax(np.bincount(labels[body])[1:])
     mirrored_cols = np.rint(2 * axis - cols).astype(np.int64)
     inside = (mirrored_cols >= 0) & (mirrored_cols < w)
-    core = mask.copy()
-    core[inside] &= mask[rows[inside], mirrored_cols[inside]]
+    core = body.copy()
+    core[inside] &= body[rows[inside], mirrored_cols[inside]]
     core[~inside] = False
     # On each row, the run of the core that holds the axis is the chord; its half-length is R_v.
     labels, _ = ndimage.label(core, structure=[[0, 0, 0], [1, 1, 1], [0, 0, 0]])
@@ -243,9 +255,12 @@ def _revolve(mask: np.ndarray, column: float, tilt: float) -> np.ndarray:
     radius = 0.5 * chord.sum(axis=1)  # (H,) pixels; the chord's pixels reach 1/2 beyond their centres
     half = np.sqrt(np.clip(radius[:, None] ** 2 - (cols - axis) ** 2, 0.0, None)) * chord
     rest = mask & ~chord
+    pieces = chord.astype(np.int32)
     if rest.any():
-        half = np.maximum(half, inflate_silhouette(rest))
-    return half.astype(np.float32)
+        half = np.where(rest, inflate_silhouette(rest), half)
+        labels, _ = ndimage.label(rest)
+        pieces = np.where(rest, labels + 1, pieces).astype(np.int32)
+    return half.astype(np.float32), pieces
 
 
 def _extrude(mask: np.ndarray) -> np.ndarray:
@@ -353,14 +368,27 @@ def _cuboid(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     return offset.astype(np.float32), half.astype(np.float32)
 
 
-def shape_depth(mask: np.ndarray, choice: ShapeChoice) -> tuple[np.ndarray, np.ndarray]:
-    """(H, W) bool silhouette → (offset, half), (H, W) float32 pixels: the mid-surface's depth offset and the
-    half-thickness about it under the chosen prior (0 outside)."""
+class ShapeDepth(NamedTuple):
+    """A prior's volume over the silhouette, in pixels (0 outside).
+
+    offset, half : (H, W) float32, the mid-surface's depth offset and the half-thickness about it.
+    pieces : (H, W) int32, 0 outside, 1… pieces closed on their own (a pot's spout is not joined to its
+        body by a web of surface: it ends inside it).
+    """
+
+    offset: np.ndarray
+    half: np.ndarray
+    pieces: np.ndarray
+
+
+def shape_depth(mask: np.ndarray, choice: ShapeChoice) -> ShapeDepth:
+    """(H, W) bool silhouette → its volume under the chosen prior."""
     mask = np.asarray(mask, dtype=bool)
-    flat = np.zeros(mask.shape, np.float32)
+    flat, whole = np.zeros(mask.shape, np.float32), mask.astype(np.int32)
     if choice.name == "revolve":
-        return flat, _revolve(mask, *choice.axis)
+        half, pieces = _revolve(mask, *choice.axis)
+        return ShapeDepth(flat, half, pieces)
     if choice.name == "extrude":
         box = _cuboid(mask)
-        return box if box is not None else (flat, _extrude(mask))
-    return flat, inflate_silhouette(mask)
+        return ShapeDepth(*box, whole) if box is not None else ShapeDepth(flat, _extrude(mask), whole)
+    return ShapeDepth(flat, inflate_silhouette(mask), whole)

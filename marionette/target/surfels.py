@@ -268,7 +268,8 @@ def sample_surface(image: np.ndarray, mask: np.ndarray, cells: np.ndarray, mid: 
     Parameters
     ----------
     image : (H, W, 3|4) uint8 photo; mask : (H, W) bool its object pixels.
-    cells : (Hc, Wc) bool, cell (i, j) (centre pixel ``(s//2 + j s, s//2 + i s)``) inside the object.
+    cells : (Hc, Wc) int, the piece of cell (i, j) (centre pixel ``(s//2 + j s, s//2 + i s)``), 0 outside the
+        object; each piece is a closed surface of its own (a bool mask is one piece).
     mid, half : (Hc, Wc) float, mid-surface depth and half-thickness of each cell (world units; any
         value outside).
     camera : the photo's camera (pinhole; the result is in its frame).
@@ -280,12 +281,15 @@ def sample_surface(image: np.ndarray, mask: np.ndarray, cells: np.ndarray, mid: 
     -------
     (Gaussians, pixel_of): N surfels, and the (N, 2) int32 (u, v) pixel of the cell each came from.
     """
-    grid = _corner_grid(cells, mid, half, camera, stride)
     texture = _Texture(image[..., :3], mask, radius_px)
     c2w = np.linalg.inv(camera.world_to_camera)
-    parts = [_sheet(grid, grid.front, texture, c2w[:3, :3], stride),
-             _sheet(grid, grid.back, texture, c2w[:3, :3], stride),
-             *_walls(grid, cells, texture, c2w[:3, :3], stride)]
+    parts = []
+    for piece in np.unique(cells[cells > 0]):  # each piece closed on its own
+        inside = cells == piece
+        grid = _corner_grid(inside, mid, half, camera, stride)
+        parts += [_sheet(grid, grid.front, texture, c2w[:3, :3], stride),
+                  _sheet(grid, grid.back, texture, c2w[:3, :3], stride),
+                  *_walls(grid, inside, texture, c2w[:3, :3], stride)]
     joined = _Samples(*(np.concatenate(column) for column in zip(*parts)))
     gaussians = Gaussians.from_rgb(joined.means @ c2w[:3, :3].T + c2w[:3, 3], joined.colours, joined.scales,
                                    opacity, joined.quats)
