@@ -64,6 +64,8 @@ _MIN_SYMMETRY = 0.85
 _TILTS = np.linspace(-0.15, 0.15, 7)
 # Parts thinner than about twice this share of sqrt(area) are appendages of a body of revolution.
 _APPENDAGE = 0.06
+# ...and a piece closed on its own when it covers at least this share of the mask.
+_MIN_PIECE = 0.01
 # Edge radius of an extrusion, as a share of its depth.
 _EDGE_ROUNDING = 0.15
 # A box's outline is read as seen level when pairing the top chain's sides with the bottom's in the same
@@ -258,8 +260,13 @@ def _revolve(mask: np.ndarray, column: float, tilt: float) -> tuple[np.ndarray, 
     pieces = chord.astype(np.int32)
     if rest.any():
         half = np.where(rest, inflate_silhouette(rest), half)
-        labels, _ = ndimage.label(rest)
-        pieces = np.where(rest, labels + 1, pieces).astype(np.int32)
+        labels, count = ndimage.label(rest)
+        # Appendages of some size are pieces of their own; slivers the opening shaved off the body stay with it.
+        sizes = np.bincount(labels.ravel(), minlength=count + 1)
+        own = sizes >= _MIN_PIECE * mask.sum()
+        own[0] = False
+        piece_of = np.where(own, np.cumsum(own) + 1, 1)
+        pieces = np.where(rest, piece_of[labels], pieces).astype(np.int32)
     return half.astype(np.float32), pieces
 
 
