@@ -249,7 +249,8 @@ def main() -> None:
     if has_shapes:
         import cv2
 
-        cv2.imwrite(str(IMAGES / "lift_views.png"), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR))
+        half = cv2.resize(sheet, (sheet.shape[1] // 2, sheet.shape[0] // 2), interpolation=cv2.INTER_AREA)
+        cv2.imwrite(str(IMAGES / "lift_views.png"), cv2.cvtColor(half, cv2.COLOR_RGB2BGR))
         OUT.write_text(report(results, speeds, clips, args.label, sheets, args.runs))
         print(OUT.read_text())
 
