@@ -20,8 +20,8 @@ from ..camera import Camera
 from ..errors import InputError
 from ..gaussians import Gaussians
 from ..segment import grabcut_mask, salient_mask
-from .shapes import SHAPES, ShapeChoice, choose_shape, inflate_silhouette, shape_depth
 from .polish import polish_reference
+from .shapes import SHAPES, ShapeChoice, choose_shape, inflate_silhouette, shape_depth
 from .surfels import sample_surface
 
 __all__ = ["LiftOptions", "LiftedTarget", "lift_image", "object_mask", "alpha_mask", "inflate_silhouette",
