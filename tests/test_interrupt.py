@@ -145,20 +145,22 @@ def test_ctrl_c_in_a_stage_is_raised_at_its_next_progress_call_not_where_it_land
     from marionette import progress
     from marionette.progress import Reporter
 
-    if signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
-        pytest.skip("SIGINT is not Python's own handler here (e.g. ignored by the shell)")
-    reporter = Reporter(quiet=True)
-    reached = []
-    with pytest.raises(KeyboardInterrupt):
-        with reporter.stage("work", 3) as step:
-            step(1, 3)
-            os.kill(os.getpid(), signal.SIGINT)
-            time.sleep(0.05)  # the handler has run: had it raised, the next line would not
-            reached.append("after the signal")
-            step(2, 3)
-            reached.append("after the next progress call")
-    assert reached == ["after the signal"]
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored after the stage
-    assert not progress.interrupt_requested()  # raised once: the next stage runs
-    with reporter.stage("more", 1) as step:
-        step(1, 1)
+    inherited = signal.signal(signal.SIGINT, signal.default_int_handler)  # a background shell may ignore it
+    try:
+        reporter = Reporter(quiet=True)
+        reached = []
+        with pytest.raises(KeyboardInterrupt):
+            with reporter.stage("work", 3) as step:
+                step(1, 3)
+                os.kill(os.getpid(), signal.SIGINT)
+                time.sleep(0.05)  # the handler has run: had it raised, the next line would not
+                reached.append("after the signal")
+                step(2, 3)
+                reached.append("after the next progress call")
+        assert reached == ["after the signal"]
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored after the stage
+        assert not progress.interrupt_requested()  # raised once: the next stage runs
+        with reporter.stage("more", 1) as step:
+            step(1, 1)
+    finally:
+        signal.signal(signal.SIGINT, inherited)
