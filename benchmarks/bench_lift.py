@@ -6,8 +6,9 @@
    centre's depth, then turned 30°, 60°, 90° and 180° about the camera's vertical axis through that
    centre and rendered, against the true render turned alike: PSNR over the union of the two
    silhouettes, SSIM over the image (scikit-image), silhouette IoU (alpha > 0.5 against coverage > 0.5).
-   Rows: the shape prior chosen automatically and each one forced; ``--baseline FILE`` adds the rows
-   saved (``--save FILE``) by this script run on an earlier version.
+   Rows: the shape prior chosen automatically (also with ``POLISH`` steps of ``--polish``) and each one
+   forced; ``--baseline FILE`` adds the rows saved (``--save FILE``) by this script run on an earlier
+   version.
 2. Photos. Every image in ``../shared/data/images`` (skipped when absent) lifted as ``transfer`` lifts
    it and turned 0°, 45°, 90° and 180° about the vertical through its centre: one contact sheet per run
    (``--label``), ``docs/images/lift_photos_<label>.png``.
@@ -45,14 +46,18 @@ STARTS = {"frontal": 0.0, "three-quarter": 30.0}
 TURNS = (30, 60, 90, 180)
 SIZE = (256, 256)
 FOV = 30.0
+POLISH = 10
 
 
 def lift(image: np.ndarray, shape: str | None, **kwargs):
-    """Lift with a shape prior when this version has them (``shape`` None: the version's only lift)."""
+    """Lift with a shape prior when this version has them (``shape`` None: the version's only lift;
+    ``"polish"``: the automatic prior with ``POLISH`` steps of photometric polish)."""
     from marionette.target.lift import LiftOptions, lift_image
 
     options = LiftOptions(depth=kwargs.pop("depth")) if "depth" in kwargs else LiftOptions()
-    if shape is not None:
+    if shape == "polish":
+        options = dataclasses.replace(options, polish=POLISH)
+    elif shape is not None:
         options = dataclasses.replace(options, shape=shape)
     return lift_image(image, options=options, **kwargs)
 
@@ -92,7 +97,7 @@ def novel_views(shapes: list[str | None]) -> tuple[dict, np.ndarray]:
             rows.append(np.concatenate([truths[t][..., :3] for t in (0, *TURNS)], axis=1))
             for shape in shapes:
                 lifted = lift(photo, shape, camera=camera, depth=float(centre[2]))
-                method = "auto" if shape is None else shape
+                method = {None: "auto", "polish": f"auto, --polish {POLISH}"}.get(shape, shape)
                 row = []
                 for t in (0, *TURNS):
                     out = render(turned(lifted.gaussians, t, centre), camera)
@@ -230,7 +235,7 @@ def main() -> None:
     from marionette.target.lift import LiftOptions
 
     has_shapes = "shape" in {f.name for f in dataclasses.fields(LiftOptions)}
-    shapes = [None, "inflate", "revolve", "extrude"] if has_shapes else [None]
+    shapes = [None, "polish", "inflate", "revolve", "extrude"] if has_shapes else [None]
     results, sheet = novel_views(shapes)
     speeds = {"auto": speed(args.runs, None)}
     sheets = {args.label: photo_sheet(args.label)}
