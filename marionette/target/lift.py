@@ -215,7 +215,8 @@ def lift_image(image: np.ndarray, *, mask: np.ndarray | None = None, camera: Cam
     The object sits at ``options.depth``, or else at the depth
     :func:`depth_for_radius` gives. The shape prior's half-thickness ``h``
     (scaled by ``thickness``) puts the front surface at ``m - h`` and the
-    back at ``m + h`` about the mid-surface ``m``, the plane ``z0``; with a
+    back at ``m + h`` about the mid-surface ``m``, the plane ``z0`` (offset
+    where the prior says so: a box seen at an angle); with a
     ``depth_map`` (H, W) (camera z, any unit, NaN or <= 0 unknown) the front
     surface follows the map instead, scaled so that its median over the
     object is ``z0 - median(h)``, and ``m`` lies ``h`` behind it. The closed

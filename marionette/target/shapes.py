@@ -121,11 +121,16 @@ def _largest_outline(mask: np.ndarray) -> np.ndarray:
     return max(contours, key=cv2.contourArea)
 
 
+def _tolerance(mask: np.ndarray) -> float:
+    """How far (pixels) a polygon may stray from the outline of a (H, W) bool mask."""
+    return max(_POLYGON_TOLERANCE * np.sqrt(mask.sum()), _MIN_TOLERANCE)
+
+
 def _polygon_fit(mask: np.ndarray) -> tuple[float, int, float, bool]:
     """(IoU of the simplified outline with the mask, its corner count, solidity, whether its sides are straight)."""
     outline = _largest_outline(mask)
     area = float(mask.sum())
-    tolerance = max(_POLYGON_TOLERANCE * np.sqrt(area), _MIN_TOLERANCE)
+    tolerance = _tolerance(mask)
     polygon = cv2.approxPolyDP(outline, tolerance, True)
     filled = np.zeros(mask.shape, np.uint8)
     cv2.fillPoly(filled, [polygon], 1)
@@ -231,7 +236,7 @@ def inflate_silhouette(mask: np.ndarray) -> np.ndarray:
 
 def _revolve(mask: np.ndarray, column: float, tilt: float) -> tuple[np.ndarray, np.ndarray]:
     """(H, W) half-thickness of the symmetric core as circles' chords, the rest inflated on its own, and the
-    pieces (H, W) int32: 1 the body of revolution, 2… each connected piece of the rest."""
+    pieces (H, W) int32: 1 the body of revolution (with the slivers around it), 2… each appendage."""
     h, w = mask.shape
     rows, cols = np.mgrid[0:h, 0:w]
     row0 = float(np.nonzero(mask)[0].mean())
@@ -241,32 +246,32 @@ def _revolve(mask: np.ndarray, column: float, tilt: float) -> tuple[np.ndarray, 
     radius_px = max(2, int(round(_APPENDAGE * np.sqrt(mask.sum()))))
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius_px + 1,) * 2)
     body = cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_OPEN, disc).astype(bool)
-    count, labels = cv2.connectedComponents(body.astype(np.uint8), connectivity=4)
+    count, components = cv2.connectedComponents(body.astype(np.uint8), connectivity=4)
     if count > 2:
-        body = labels == 1 + np.argmax(np.bincount(labels[body])[1:])
+        body = components == 1 + np.argmax(np.bincount(components[body])[1:])
     mirrored_cols = np.rint(2 * axis - cols).astype(np.int64)
     inside = (mirrored_cols >= 0) & (mirrored_cols < w)
     core = body.copy()
     core[inside] &= body[rows[inside], mirrored_cols[inside]]
     core[~inside] = False
     # On each row, the run of the core that holds the axis is the chord; its half-length is R_v.
-    labels, _ = ndimage.label(core, structure=[[0, 0, 0], [1, 1, 1], [0, 0, 0]])
+    runs, _ = ndimage.label(core, structure=[[0, 0, 0], [1, 1, 1], [0, 0, 0]])
     axis_col = np.clip(np.rint(axis[:, 0]).astype(np.int64), 0, w - 1)
-    run_on_axis = labels[np.arange(h), axis_col]  # (H,) label of the run on the axis, 0 if none
-    chord = (labels > 0) & (labels == run_on_axis[:, None])
+    run_on_axis = runs[np.arange(h), axis_col]  # (H,) label of the run on the axis, 0 if none
+    chord = (runs > 0) & (runs == run_on_axis[:, None])
     radius = 0.5 * chord.sum(axis=1)  # (H,) pixels; the chord's pixels reach 1/2 beyond their centres
     half = np.sqrt(np.clip(radius[:, None] ** 2 - (cols - axis) ** 2, 0.0, None)) * chord
     rest = mask & ~chord
     pieces = chord.astype(np.int32)
     if rest.any():
         half = np.where(rest, inflate_silhouette(rest), half)
-        labels, count = ndimage.label(rest)
+        components, count = ndimage.label(rest)
         # Appendages of some size are pieces of their own; slivers the opening shaved off the body stay with it.
-        sizes = np.bincount(labels.ravel(), minlength=count + 1)
+        sizes = np.bincount(components.ravel(), minlength=count + 1)
         own = sizes >= _MIN_PIECE * mask.sum()
         own[0] = False
         piece_of = np.where(own, np.cumsum(own) + 1, 1)
-        pieces = np.where(rest, piece_of[labels], pieces).astype(np.int32)
+        pieces = np.where(rest, piece_of[components], pieces).astype(np.int32)
     return half.astype(np.float32), pieces
 
 
@@ -335,7 +340,7 @@ def _cuboid(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     orthographic) enters and leaves the box.
     """
     outline = _largest_outline(mask)
-    tolerance = max(_POLYGON_TOLERANCE * np.sqrt(mask.sum()), _MIN_TOLERANCE)
+    tolerance = _tolerance(mask)
     for scale in (1.0, 1.5, 2.0):  # a small box's pixel steps may add a corner at the finest tolerance
         polygon = cv2.approxPolyDP(outline, scale * tolerance, True)
         if len(polygon) <= 6:
