@@ -115,3 +115,43 @@ def test_thin_parts_survive():
         assert (alpha[img[..., 3] > 0] > 0.5).all()
         side = render(turned(lifted, (0, np.pi / 3, 0)), lifted.camera).alpha
         assert (side > 0.5).sum() > 0.5 * (img[..., 3] > 0).sum()
+
+
+def _same_surfels(a, b):
+    assert len(a) == len(b)
+    np.testing.assert_allclose(a.means, b.means, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(a.log_scales, b.log_scales, rtol=0, atol=1e-5)
+    np.testing.assert_allclose(a.sh, b.sh, rtol=0, atol=1e-5)
+    # q and -q are the same rotation; both paths keep w >= 0, so compare the matrices.
+    np.testing.assert_allclose(quaternion_to_matrix(a.quats), quaternion_to_matrix(b.quats), rtol=0, atol=1e-5)
+
+
+@pytest.mark.parametrize("shape", ["inflate", "revolve", "extrude"])
+def test_the_numba_sampler_matches_its_numpy_twin(shape, monkeypatch):
+    from marionette.target import lift as lift_module
+    from marionette.target import surfels
+
+    img, _ = rectangle_photo(stripes=True)
+    img[20:40, 60:70, :3] = (10, 220, 90)  # a patch of another colour, away from the outline
+    fast = lift(img, shape).gaussians
+    monkeypatch.setattr(lift_module, "sample_surface",
+                        lambda *args, **kwargs: surfels.sample_surface(*args, **kwargs, reference=True))
+    _same_surfels(fast, lift(img, shape).gaussians)
+
+
+def test_the_numba_sampler_matches_its_twin_on_degenerate_patches():
+    """A sheet of zero thickness: its walls have no height (their frames fall back to a perpendicular),
+    and a cell squeezed to a point on the outline."""
+    from marionette.target.surfels import sample_surface
+
+    img, inside = disc_photo()
+    stride = 4
+    cells = inside[stride // 2::stride, stride // 2::stride].astype(np.int64)
+    mid = np.full(cells.shape, 5.0)
+    half = np.zeros(cells.shape)
+    half[cells.shape[0] // 2:] = 0.3  # half the disc has thickness, half none
+    camera = Camera.from_fov(SIZE, SIZE, 30.0)
+    results = [sample_surface(img, inside, cells, mid, half, camera, stride, 0.9, 20.0, reference=reference)
+               for reference in (False, True)]
+    _same_surfels(results[0][0], results[1][0])
+    np.testing.assert_array_equal(results[0][1], results[1][1])

@@ -30,6 +30,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import cv2
+import numba
 import numpy as np
 
 from ..camera import Camera
@@ -51,6 +52,8 @@ _MAX_SPLIT = 64
 # Blur levels (share of the object's pixel radius) for slanted patches and walls.
 _BLUR_LEVELS = (0.0, 0.01, 0.02, 0.04)
 _WALL_LEVEL = 1
+# Below this share of object pixels under a texture read, the object's mean colour is used.
+_MIN_WEIGHT = 1e-3
 
 
 class _Texture:
@@ -59,25 +62,24 @@ class _Texture:
     def __init__(self, rgb: np.ndarray, mask: np.ndarray, radius_px: float):
         weight = mask.astype(np.float32)
         premultiplied = rgb.astype(np.float32) / 255.0 * weight[..., None]
-        self.levels = []
+        levels = []
         for share in _BLUR_LEVELS:
             sigma = share * radius_px
-            if sigma < 0.5:
-                self.levels.append((premultiplied, weight))
-            else:
-                self.levels.append((cv2.GaussianBlur(premultiplied, (0, 0), sigma),
-                                    cv2.GaussianBlur(weight, (0, 0), sigma)))
+            blur = (lambda a: a) if sigma < 0.5 else (lambda a: cv2.GaussianBlur(a, (0, 0), sigma))  # noqa: E731
+            levels.append(np.concatenate([blur(premultiplied), blur(weight)[..., None]], axis=2))
+        self.levels = np.stack(levels)  # (L, H, W, 4): premultiplied colour and weight
         self.fallback = rgb[mask].astype(np.float32).mean(axis=0) / 255.0
 
     def sample(self, u: np.ndarray, v: np.ndarray, level: np.ndarray) -> np.ndarray:
         """(N,) pixel positions and blur level indices → (N, 3) colours in [0, 1]."""
         out = np.empty((len(u), 3), np.float32)
-        for index, (colour, weight) in enumerate(self.levels):
+        for index, image in enumerate(self.levels):
             sel = np.nonzero(level == index)[0]
             if not len(sel):
                 continue
-            c, w = _bilinear(colour, u[sel], v[sel]), _bilinear(weight[..., None], u[sel], v[sel])[:, 0]
-            out[sel] = np.where(w[:, None] > 1e-3, c / np.maximum(w, 1e-3)[:, None], self.fallback)
+            read = _bilinear(image, u[sel], v[sel])
+            c, w = read[:, :3], read[:, 3]
+            out[sel] = np.where(w[:, None] > _MIN_WEIGHT, c / np.maximum(w, _MIN_WEIGHT)[:, None], self.fallback)
         return np.clip(out, 0.0, 1.0)
 
 
@@ -201,40 +203,49 @@ def _corner_grid(cells: np.ndarray, mid: np.ndarray, half: np.ndarray, camera: C
                  np.where(interior[ci, cj], _OVERLAP, _RIM_OVERLAP))
 
 
-def _patches(p4: np.ndarray, width: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                                                         np.ndarray, np.ndarray]:
+class _Patches(NamedTuple):
+    """P bilinear patches and how each is split into samples."""
+
+    corners: np.ndarray  # (P, 4, 3) camera-frame corners, ordered 00, 10, 01, 11
+    uv: np.ndarray  # (P, 4, 2) the photo positions their samples read, at the same corners
+    fold: np.ndarray  # (P, 2) read offset per unit of min(b, 1 - b) (a wall's photo folded across the outline)
+    split_a: np.ndarray  # (P,) int64 sub-patches along a (corner 00 → 10)
+    split_b: np.ndarray  # (P,) int64 and along b (00 → 01)
+    level: np.ndarray  # (P,) int64 blur level of the photo they read
+    overlap: np.ndarray  # (P,) their surfels' deviation over spacing
+    pixel: np.ndarray  # (P, 2) pixel of the cell they came from
+
+
+def _edge_vectors(p4: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Bilinear patches' corners (P, 4, 3) (ordered 00, 10, 01, 11) → their mean edge vectors (P, 3) along a, b."""
+    return 0.5 * (p4[:, 1] - p4[:, 0] + p4[:, 3] - p4[:, 2]), 0.5 * (p4[:, 2] - p4[:, 0] + p4[:, 3] - p4[:, 1])
+
+
+def _edges(p4: np.ndarray, width: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Bilinear patches with corners (P, 4, 3) (ordered 00, 10, 01, 11) split by area on cells ``width`` wide.
 
-    Returns the mean edge vectors (P, 3) ``e_a``, ``e_b``, the splits (P,) ``k_a``, ``k_b``, and per sample
-    (N,) its patch and its bilinear weights (N, 4).
+    Returns the mean edge vectors (P, 3) ``e_a``, ``e_b`` and the splits (P,) ``k_a``, ``k_b``.
     """
-    e_a = 0.5 * (p4[:, 1] - p4[:, 0] + p4[:, 3] - p4[:, 2])
-    e_b = 0.5 * (p4[:, 2] - p4[:, 0] + p4[:, 3] - p4[:, 1])
-    k_a, k_b = _split(np.linalg.norm(e_a, axis=1), width), _split(np.linalg.norm(e_b, axis=1), width)
-    patch, a, b = _sub_grid(k_a, k_b)
-    weights = np.stack([(1 - a) * (1 - b), a * (1 - b), (1 - a) * b, a * b], axis=1)
-    return e_a, e_b, k_a, k_b, patch, weights
+    e_a, e_b = _edge_vectors(p4)
+    return e_a, e_b, _split(np.linalg.norm(e_a, axis=1), width), _split(np.linalg.norm(e_b, axis=1), width)
 
 
-def _sheet(grid: _Grid, points: np.ndarray, texture: _Texture, rotation: np.ndarray, s: int) -> _Samples:
-    """Surfels of one sheet, given its corner points (Hc+1, Wc+1, 3); ``rotation`` camera to world."""
+def _sheet(grid: _Grid, points: np.ndarray, s: int) -> _Patches:
+    """Patches of one sheet, given its corner points (Hc+1, Wc+1, 3)."""
     ci, cj = grid.ci, grid.cj
     corners = [(ci, cj), (ci, cj + 1), (ci + 1, cj), (ci + 1, cj + 1)]
     p4 = np.stack([points[i, j] for i, j in corners], axis=1)  # (P, 4, 3)
-    e_u, e_v, ku, kv, patch, weights = _patches(p4, grid.width)
-    q, sc = _frames(e_u, e_v, np.linalg.norm(e_u, axis=1) / ku, np.linalg.norm(e_v, axis=1) / kv, grid.overlap,
-                    rotation)  # one frame per patch, shared by its samples
+    e_u, e_v, ku, kv = _edges(p4, grid.width)
     stretch = np.linalg.norm(np.cross(e_u, e_v), axis=1) / grid.width**2  # area over footprint, >= ~1
     level = np.clip(np.floor(np.log2(np.maximum(stretch, 1.0)) / 2), 0, len(_BLUR_LEVELS) - 1).astype(np.int64)
     # Both sheets read the pixel the sample lies on (or behind): the back is the front's mirror image.
-    u = (weights * np.stack([grid.u[i, j] for i, j in corners], axis=1)[patch]).sum(axis=1)
-    v = (weights * np.stack([grid.v[i, j] for i, j in corners], axis=1)[patch]).sum(axis=1)
-    return _Samples(np.einsum("nk,nkc->nc", weights, p4[patch]), q[patch], sc[patch],
-                    texture.sample(u, v, level[patch]), np.stack([s // 2 + cj * s, s // 2 + ci * s], axis=1)[patch])
+    uv = np.stack([np.stack([grid.u[i, j], grid.v[i, j]], axis=1) for i, j in corners], axis=1)
+    return _Patches(p4, uv, np.zeros((len(ci), 2)), ku, kv, level, grid.overlap,
+                    np.stack([s // 2 + cj * s, s // 2 + ci * s], axis=1))
 
 
-def _walls(grid: _Grid, cells: np.ndarray, texture: _Texture, rotation: np.ndarray, s: int) -> list[_Samples]:
-    """Surfels of the walls: along every cell edge on the outline, from the front sheet's corners to the back's."""
+def _walls(grid: _Grid, cells: np.ndarray, s: int) -> list[_Patches]:
+    """Patches of the walls: along every cell edge on the outline, from the front sheet's corners to the back's."""
     hc, wc = cells.shape
     padded = np.pad(cells, 1)
     out = []
@@ -246,23 +257,175 @@ def _walls(grid: _Grid, cells: np.ndarray, texture: _Texture, rotation: np.ndarr
         end0, end1 = (ei + a_i, ej + a_j), (ei + b_i, ej + b_j)
         p4 = np.stack([grid.front[end0], grid.front[end1], grid.back[end0], grid.back[end1]], axis=1)  # (E, 4, 3)
         width = grid.width[np.searchsorted(grid.ci * wc + grid.cj, ei * wc + ej)]
-        along, down, ke, kd, patch, weights = _patches(p4, width)
-        q, sc = _frames(along, down, np.linalg.norm(along, axis=1) / ke, np.linalg.norm(down, axis=1) / kd,
-                        np.full(len(ke), _RIM_OVERLAP), rotation)
+        along, down, ke, kd = _edges(p4, width)
         # The wall's texture is the photo folded in across the outline from the nearer sheet, so its
         # detail runs across the wall as it does on the front, not as rim pixels drawn out along depth.
-        a, b = weights[:, 1] + weights[:, 3], weights[:, 2] + weights[:, 3]
-        u_edge = grid.u[end0][patch] + a * (grid.u[end1] - grid.u[end0])[patch]
-        v_edge = grid.v[end0][patch] + a * (grid.v[end1] - grid.v[end0])[patch]
-        fold = np.minimum(b, 1.0 - b) * (np.linalg.norm(down, axis=1) / width * s)[patch]
-        out.append(_Samples(np.einsum("nk,nkc->nc", weights, p4[patch]), q[patch], sc[patch],
-                            texture.sample(u_edge - dj * fold, v_edge - di * fold, np.full(len(patch), _WALL_LEVEL)),
-                            np.stack([s // 2 + ej * s, s // 2 + ei * s], axis=1)[patch]))
+        uv0, uv1 = np.stack([grid.u[end0], grid.v[end0]], axis=1), np.stack([grid.u[end1], grid.v[end1]], axis=1)
+        fold = -np.array([dj, di], np.float64) * (np.linalg.norm(down, axis=1) / width * s)[:, None]
+        out.append(_Patches(p4, np.stack([uv0, uv1, uv0, uv1], axis=1), fold, ke, kd,
+                            np.full(len(ke), _WALL_LEVEL, np.int64), np.full(len(ke), _RIM_OVERLAP),
+                            np.stack([s // 2 + ej * s, s // 2 + ei * s], axis=1)))
+    return out
+
+
+def _emit_numpy(patches: _Patches, texture: _Texture, rotation: np.ndarray) -> _Samples:
+    """Every patch's samples at its sub-patch centres; ``rotation`` (3, 3) camera to world.
+
+    The plain-NumPy twin of :func:`_emit_kernel`.
+    """
+    (e_a, e_b), k_a, k_b = _edge_vectors(patches.corners), patches.split_a, patches.split_b
+    quats, scales = _frames(e_a, e_b, np.linalg.norm(e_a, axis=1) / k_a, np.linalg.norm(e_b, axis=1) / k_b,
+                            patches.overlap, rotation)  # one frame per patch, shared by its samples
+    patch, a, b = _sub_grid(k_a, k_b)
+    weights = np.stack([(1 - a) * (1 - b), a * (1 - b), (1 - a) * b, a * b], axis=1)
+    means = np.einsum("nk,nkc->nc", weights, patches.corners[patch])
+    uv = np.einsum("nk,nkc->nc", weights, patches.uv[patch]) + np.minimum(b, 1 - b)[:, None] * patches.fold[patch]
+    return _Samples(means, quats[patch], scales[patch], texture.sample(uv[:, 0], uv[:, 1], patches.level[patch]),
+                    patches.pixel[patch])
+
+
+@numba.njit(cache=True, inline="always")
+def _lerp2(image, v0, u0, v1, u1, fv, fu, c):
+    """Channel ``c`` of ``image`` (H, W, C) between pixels (v0, u0) and (v1, u1) at fractions (fv, fu)."""
+    return ((1 - fv) * ((1 - fu) * image[v0, u0, c] + fu * image[v0, u1, c])
+            + fv * ((1 - fu) * image[v1, u0, c] + fu * image[v1, u1, c]))
+
+
+# The kernel's vector helpers work on (x, y, z) tuples: they stay in registers, where small arrays would be
+# allocated per patch.
+@numba.njit(cache=True, inline="always")
+def _cross3(a, b):
+    return a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]
+
+
+@numba.njit(cache=True, inline="always")
+def _dot3(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+@numba.njit(cache=True, inline="always")
+def _unit_or(v, fallback):
+    """``v`` normalised, or ``fallback`` when too short to have a direction (as :func:`_unit`)."""
+    norm = np.sqrt(_dot3(v, v))
+    if norm > 1e-12:
+        return v[0] / norm, v[1] / norm, v[2] / norm
+    return fallback
+
+
+@numba.njit(cache=True, inline="always")
+def _perpendicular_one(v):
+    """As :func:`_perpendicular` for one vector: ``v`` crossed with the axis it has least of."""
+    x, y, z = abs(v[0]), abs(v[1]), abs(v[2])
+    if x <= y and x <= z:
+        helper = (1.0, 0.0, 0.0)
+    elif y <= z:
+        helper = (0.0, 1.0, 0.0)
+    else:
+        helper = (0.0, 0.0, 1.0)
+    return _unit_or(_cross3(v, helper), (1.0, 0.0, 0.0))
+
+
+@numba.njit(cache=True)
+def _quaternion_one(m, out):
+    """As :func:`marionette.geometry.matrix_to_quaternion` for one rotation (3, 3), written into ``out`` (4,)."""
+    tr = m[0, 0] + m[1, 1] + m[2, 2]
+    diag = (1 + tr, 1 + m[0, 0] - m[1, 1] - m[2, 2], 1 - m[0, 0] + m[1, 1] - m[2, 2], 1 - m[0, 0] - m[1, 1] + m[2, 2])
+    best = 0
+    for i in range(1, 4):
+        if diag[i] > diag[best]:
+            best = i
+    s = 2.0 * np.sqrt(max(diag[best], 1e-300))
+    d21, d02, d10 = m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1]
+    s10, s02, s21 = m[1, 0] + m[0, 1], m[0, 2] + m[2, 0], m[2, 1] + m[1, 2]
+    if best == 0:
+        q = (s / 4, d21 / s, d02 / s, d10 / s)
+    elif best == 1:
+        q = (d21 / s, s / 4, s10 / s, s02 / s)
+    elif best == 2:
+        q = (d02 / s, s10 / s, s / 4, s21 / s)
+    else:
+        q = (d10 / s, s02 / s, s21 / s, s / 4)
+    sign = -1.0 if q[0] < 0 else 1.0
+    norm = np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    for i in range(4):
+        out[i] = sign * q[i] / norm
+
+
+@numba.njit(cache=True, parallel=True)
+def _emit_kernel(corners, uv, fold, split_a, split_b, level, overlap, pixel, first, levels, fallback, rotation,
+                 means, quats, scales, colours, pixel_of):
+    """:func:`_emit_numpy` one patch per iteration, writing sample ``first[p] + j k_a + i`` (``first`` (P,)
+    the patches' offsets; ``levels`` the texture's (L, H, W, 4); outputs preallocated)."""
+    h, w = levels.shape[1], levels.shape[2]
+    for p in numba.prange(corners.shape[0]):
+        ka, kb = split_a[p], split_b[p]
+        # The patch's frame, as _frames: along e_a, across it within the patch, and the normal.
+        c0, c1, c2, c3 = corners[p, 0], corners[p, 1], corners[p, 2], corners[p, 3]
+        e_a = (0.5 * (c1[0] - c0[0] + c3[0] - c2[0]), 0.5 * (c1[1] - c0[1] + c3[1] - c2[1]),
+               0.5 * (c1[2] - c0[2] + c3[2] - c2[2]))
+        e_b = (0.5 * (c2[0] - c0[0] + c3[0] - c1[0]), 0.5 * (c2[1] - c0[1] + c3[1] - c1[1]),
+               0.5 * (c2[2] - c0[2] + c3[2] - c1[2]))
+        w_a = np.sqrt(_dot3(e_a, e_a)) / ka
+        w_b = np.sqrt(_dot3(e_b, e_b)) / kb
+        t1 = _unit_or(e_a, _perpendicular_one(e_b))
+        normal = _unit_or(_cross3(t1, e_b), _perpendicular_one(t1))
+        t2 = _cross3(normal, t1)
+        world = np.empty((3, 3))  # rotation @ [t1 t2 normal]
+        for r in range(3):
+            row = (rotation[r, 0], rotation[r, 1], rotation[r, 2])
+            world[r, 0], world[r, 1], world[r, 2] = _dot3(row, t1), _dot3(row, t2), _dot3(row, normal)
+        quat = np.empty(4)
+        _quaternion_one(world, quat)
+        across = abs(_dot3(e_b, t2)) / max(np.sqrt(_dot3(e_b, e_b)), 1e-12) * w_b
+        tangent_a, tangent_b = w_a * overlap[p], max(across, 0.25 * w_a) * overlap[p]
+        thickness = _FLATNESS * min(tangent_a, tangent_b)
+        image = levels[level[p]]
+        for j in range(kb):
+            b = (j + 0.5) / kb
+            for i in range(ka):
+                a = (i + 0.5) / ka
+                n = first[p] + j * ka + i
+                w00, w10, w01, w11 = (1 - a) * (1 - b), a * (1 - b), (1 - a) * b, a * b
+                for c in range(3):
+                    means[n, c] = (w00 * corners[p, 0, c] + w10 * corners[p, 1, c] + w01 * corners[p, 2, c]
+                                   + w11 * corners[p, 3, c])
+                quats[n] = quat
+                scales[n, 0], scales[n, 1], scales[n, 2] = tangent_a, tangent_b, thickness
+                pixel_of[n] = pixel[p]
+                folded = min(b, 1 - b)
+                u = w00 * uv[p, 0, 0] + w10 * uv[p, 1, 0] + w01 * uv[p, 2, 0] + w11 * uv[p, 3, 0] + folded * fold[p, 0]
+                v = w00 * uv[p, 0, 1] + w10 * uv[p, 1, 1] + w01 * uv[p, 2, 1] + w11 * uv[p, 3, 1] + folded * fold[p, 1]
+                # Bilinear read of the blur level, clamped as _bilinear clamps.
+                u = min(max(u, 0.0), w - 1.0)
+                v = min(max(v, 0.0), h - 1.0)
+                u0 = min(int(np.floor(u)), w - 2) if w > 1 else 0
+                v0 = min(int(np.floor(v)), h - 2) if h > 1 else 0
+                u1, v1 = min(u0 + 1, w - 1), min(v0 + 1, h - 1)
+                fu, fv = u - u0, v - v0
+                weight = _lerp2(image, v0, u0, v1, u1, fv, fu, 3)
+                for c in range(3):
+                    value = _lerp2(image, v0, u0, v1, u1, fv, fu, c) / weight if weight > _MIN_WEIGHT else fallback[c]
+                    colours[n, c] = min(max(value, 0.0), 1.0)
+
+
+def _emit(patches: _Patches, texture: _Texture, rotation: np.ndarray, reference: bool = False) -> _Samples:
+    """The surfels of ``patches``, each split into sub-patches with one surfel at each centre (camera-frame
+    means, world-frame rotations: ``rotation`` (3, 3) camera to world)."""
+    if reference:
+        return _emit_numpy(patches, texture, rotation)
+    counts = patches.split_a * patches.split_b
+    total = int(counts.sum())
+    out = _Samples(np.empty((total, 3)), np.empty((total, 4)), np.empty((total, 3)), np.empty((total, 3), np.float32),
+                   np.empty((total, 2), patches.pixel.dtype))
+    _emit_kernel(patches.corners, patches.uv, patches.fold, patches.split_a, patches.split_b, patches.level,
+                 patches.overlap, patches.pixel, np.cumsum(counts) - counts, texture.levels, texture.fallback,
+                 rotation, *out)
     return out
 
 
 def sample_surface(image: np.ndarray, mask: np.ndarray, cells: np.ndarray, mid: np.ndarray, half: np.ndarray,
-                   camera: Camera, stride: int, opacity: float, radius_px: float) -> tuple[Gaussians, np.ndarray]:
+                   camera: Camera, stride: int, opacity: float, radius_px: float,
+                   reference: bool = False) -> tuple[Gaussians, np.ndarray]:
     """Surfels of the closed surface over a cell grid, in the camera frame.
 
     Parameters
@@ -276,6 +439,7 @@ def sample_surface(image: np.ndarray, mask: np.ndarray, cells: np.ndarray, mid: 
     stride : int, cell size ``s`` in pixels.
     opacity : float, of every surfel.
     radius_px : float, the object's RMS radius in pixels (scales the blur of slanted patches).
+    reference : bool, emit the samples with the plain-NumPy twin instead of the numba kernel.
 
     Returns
     -------
@@ -287,9 +451,8 @@ def sample_surface(image: np.ndarray, mask: np.ndarray, cells: np.ndarray, mid: 
     for piece in np.unique(cells[cells > 0]):  # each piece closed on its own
         inside = cells == piece
         grid = _corner_grid(inside, mid, half, camera, stride)
-        parts += [_sheet(grid, grid.front, texture, c2w[:3, :3], stride),
-                  _sheet(grid, grid.back, texture, c2w[:3, :3], stride),
-                  *_walls(grid, inside, texture, c2w[:3, :3], stride)]
+        patches = [_sheet(grid, grid.front, stride), _sheet(grid, grid.back, stride), *_walls(grid, inside, stride)]
+        parts += [_emit(p, texture, c2w[:3, :3], reference) for p in patches]
     joined = _Samples(*(np.concatenate(column) for column in zip(*parts)))
     gaussians = Gaussians.from_rgb(joined.means @ c2w[:3, :3].T + c2w[:3, 3], joined.colours, joined.scales,
                                    opacity, joined.quats)
