@@ -29,7 +29,7 @@ from .geometry import rotation_angle_deg
 from .io import read_ply, read_prior, write_image, write_prior, write_splat_animation
 from .io.atomic import StagedOutputs, check_output_dir, check_output_folder, check_output_path, staged_outputs
 from .io.video import DEFAULT_MAX_PIXELS
-from .options import parse_background, parse_part_seeds, parse_parts, parse_size
+from .options import parse_background, parse_part_seeds, parse_parts, parse_scene_background, parse_size
 from .plot import plot_prior
 from .progress import Reporter, interrupt_requested
 from .render import render
@@ -302,6 +302,9 @@ RotationScale = Annotated[float, typer.Option(help="Multiply every rotation angl
 TranslationScale = Annotated[float, typer.Option(help="Multiply every displacement of the parts' centres.")]
 Fps = Annotated[Optional[float], typer.Option(help="Output frame rate (default: the source's).")]
 Background = Annotated[str, typer.Option(help="Background colour R,G,B (0-1 or 0-255).")]
+SceneBackground = Annotated[str, typer.Option(
+    "--background", help="Background colour R,G,B (0-1 or 0-255), or 'scene': the object moves inside its photo "
+                         "(the output keeps the photo's framing and size, the spot it leaves is inpainted).")]
 Size = Annotated[Optional[str], typer.Option(
     help="Output size WIDTHxHEIGHT for a .ply target (default 512x512); an image target is resized to it.")]
 CameraMove = Annotated[str, typer.Option("--camera", help="Camera move: static, orbit or dolly.")]
@@ -346,7 +349,7 @@ class _Playback:
     rotation_scale: float
     translation_scale: float
     fps: float | None
-    background: tuple[float, float, float]
+    background: tuple[float, float, float] | str  # a colour or "scene"
     size: tuple[int, int] | None
     camera: str
     camera_amount: float | None
@@ -394,8 +397,11 @@ def _playback(output: Path, target: Path, frames, speed, loop, reverse, rotation
     if target_mask is not None and not target_mask.is_file():
         raise InputError(f"target mask {target_mask} does not exist")
     pipeline.check_target(target, target_mask, target_depth)
+    background = _parsed("--background", parse_scene_background, background)
+    if background == "scene" and target.suffix.lower() == ".ply":
+        raise InputError("--background scene needs an image target: a .ply has no scene around it")
     return _Playback(frames, speed, loop, reverse, rotation_scale, translation_scale, fps,
-                     _parsed("--background", parse_background, background), _parsed("--size", parse_size, size),
+                     background, _parsed("--size", parse_size, size),
                      camera, camera_amount, camera_path, ply_dir, target_mask, target_depth, shape, polish, anchor,
                      _parsed("--part-seed", parse_part_seeds, part_seed or None), refine, preview, splats)
 
@@ -418,10 +424,17 @@ def _transfer_and_render(prior, target: Path, output: Path, play: _Playback, ses
                                        translation_scale=play.translation_scale, anchor=play.anchor,
                                        part_seeds=play.part_seeds, refine=RefineOptions() if play.refine else None)
         progress(1, 1)
-    cameras = path_cameras or pipeline.output_cameras(lifted, trajectory, play.camera, play.camera_amount)
+    scene = play.background == "scene"
+    cameras = path_cameras or pipeline.output_cameras(lifted, trajectory, play.camera, play.camera_amount,
+                                                      framed=not scene)
+    background = play.background
+    if scene:
+        with session.reporter.stage("clean plate", 1) as progress:
+            background = pipeline.scene_compositor(lifted)
+            progress(1, 1)
     video = session.stage(output)
     pipeline.render_video(video, lifted, trajectory, cameras, fps=play.fps or prior.fps,
-                          background=play.background, reporter=session.reporter)
+                          background=background, reporter=session.reporter)
     session.output("video", output)
     session.figures["target"] = {"gaussians": len(lifted.gaussians), "frames": trajectory.num_frames,
                                  "size": [cameras[0].width, cameras[0].height], "fps": play.fps or prior.fps,
@@ -444,7 +457,7 @@ def transfer(prior: Annotated[Path, typer.Argument(help="SpaT prior .npz.")],
              target: Annotated[Path, typer.Argument(help="Target image (RGB/RGBA) or 3DGS .ply.")],
              output: Output, frames: Frames = None, speed: Speed = 1.0, loop: Loop = "hold", reverse: Reverse = False,
              rotation_scale: RotationScale = 1.0, translation_scale: TranslationScale = 1.0, fps: Fps = None,
-             background: Background = "1,1,1", size: Size = None, camera: CameraMove = "static",
+             background: SceneBackground = "1,1,1", size: Size = None, camera: CameraMove = "static",
              camera_amount: CameraAmount = None, camera_path: CameraPath = None, ply_dir: PlyDir = None,
              target_mask: TargetMask = None, target_depth: TargetDepth = None, shape: TargetShape = "auto",
              polish: Polish = 0, anchor: Anchor = "centroid", part_seed: PartSeed = None, refine: Refine = True,
@@ -466,7 +479,7 @@ def run(source: Annotated[Path, typer.Argument(help="Video file or folder of fra
         max_pixels: MaxPixels = DEFAULT_MAX_PIXELS, smooth: Smooth = 1.0, plot: Plot = None,
         frames: Frames = None, speed: Speed = 1.0, loop: Loop = "hold", reverse: Reverse = False,
         rotation_scale: RotationScale = 1.0, translation_scale: TranslationScale = 1.0, fps: Fps = None,
-        background: Background = "1,1,1", size: Size = None, camera: CameraMove = "static",
+        background: SceneBackground = "1,1,1", size: Size = None, camera: CameraMove = "static",
         camera_amount: CameraAmount = None, camera_path: CameraPath = None, ply_dir: PlyDir = None,
         target_mask: TargetMask = None, target_depth: TargetDepth = None, shape: TargetShape = "auto",
         polish: Polish = 0, anchor: Anchor = "centroid", part_seed: PartSeed = None, refine: Refine = True,

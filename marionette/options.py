@@ -40,6 +40,16 @@ def parse_background(value: Any) -> tuple[float, float, float]:
     return rgb[0] / scale, rgb[1] / scale, rgb[2] / scale
 
 
+def parse_scene_background(value: Any) -> tuple[float, float, float] | str:
+    """``"scene"`` (the photo's own scene) or a colour as :func:`parse_background` reads it."""
+    if value == "scene":
+        return "scene"
+    try:
+        return parse_background(value)
+    except ValueError:
+        raise ValueError("must be R,G,B within 0-1 or 0-255, or 'scene'") from None
+
+
 def parse_size(value: Any) -> tuple[int, int]:
     """``"WIDTHxHEIGHT"`` or ``[WIDTH, HEIGHT]``, integers within 16..MAX_IMAGE_SIDE."""
     w, h = _numbers(value, 2, "x")

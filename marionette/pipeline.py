@@ -33,6 +33,7 @@ from .prior import SpatPrior
 from .progress import Reporter
 from .render import render
 from .render.camera_path import camera_path, load_camera_path
+from .scene import SceneCompositor, clean_plate
 from .source import ExtractOptions, extract_prior
 from .source.depth import read_depth_map, read_depths
 from .target.lift import LiftedTarget, LiftOptions, alpha_mask, lift_image
@@ -44,7 +45,7 @@ from .transfer.velocity import integrate
 
 __all__ = ["extract", "reconstruct",
            "load_target", "relative_depth", "check_target", "check_part_seeds", "transfer", "output_cameras",
-           "fit_view", "render_frames", "render_video", "write_ply_frames", "side_by_side", "write_side_by_side",
+           "fit_view", "scene_compositor", "render_frames", "render_video", "write_ply_frames", "side_by_side", "write_side_by_side",
            "write_preview", "source_intrinsics", "DEFAULT_MAX_SIDE", "PLY_FRAME_NAME"]
 
 #: Names of the per-frame files of :func:`write_ply_frames` (a folder of only these may be replaced).
@@ -267,16 +268,19 @@ def transfer(prior: SpatPrior, target: LiftedTarget, *, frames: int | None = Non
 
 
 def output_cameras(target: LiftedTarget, trajectory: Trajectory, move: str = "static", amount: float | None = None,
-                   path: str | Path | None = None) -> list[Camera]:
-    """One camera per output frame: from a camera-path JSON file, or the framed reference view with a ``move``.
+                   path: str | Path | None = None, framed: bool = True) -> list[Camera]:
+    """One camera per output frame: from a camera-path JSON file, or the reference view with a ``move``.
 
     ``move`` is static, orbit or dolly with its ``amount`` (see
-    :func:`~marionette.render.camera_path.camera_path`).
+    :func:`~marionette.render.camera_path.camera_path`). ``framed``: the
+    reference view zoomed out to keep the whole motion in frame
+    (:func:`fit_view`); False keeps the photo's own framing (a result in the
+    photo's scene).
     """
     if path is not None:
         return load_camera_path(path, trajectory.num_frames)
-    return camera_path(fit_view(target.camera, trajectory), target.gaussians.means.mean(axis=0),
-                       trajectory.num_frames, move, amount)
+    start = fit_view(target.camera, trajectory) if framed else target.camera
+    return camera_path(start, target.gaussians.means.mean(axis=0), trajectory.num_frames, move, amount)
 
 
 def fit_view(camera: Camera, trajectory: Trajectory, margin: float = 0.06, samples: int = 20000) -> Camera:
@@ -288,33 +292,55 @@ def fit_view(camera: Camera, trajectory: Trajectory, margin: float = 0.06, sampl
     return camera.framing(trajectory.means[:, ::step].reshape(-1, 3), margin)
 
 
+def scene_compositor(target: LiftedTarget, *, inpaint: str = "fsr", detail: bool = True) -> SceneCompositor:
+    """What renders a lifted photo's object inside the photo's own scene (``--background scene``).
+
+    The object's region of the photo is inpainted (``inpaint``, see
+    :func:`~marionette.scene.plate.clean_plate`); ``detail`` carries the
+    photo's own texture on the object (:mod:`marionette.scene.composite`).
+    """
+    if target.image is None:
+        raise InputError("a scene background needs an image target (a .ply has no scene around it)")
+    plate = clean_plate(target.image, target.mask, inpaint)
+    return SceneCompositor.from_lift(target.gaussians, target.camera, target.pixel_of, target.image, plate, detail)
+
+
 def render_frames(gaussians: Gaussians, trajectory: Trajectory, camera: Camera | Sequence[Camera],
-                  background: tuple[float, float, float] = (1.0, 1.0, 1.0),
+                  background: tuple[float, float, float] | SceneCompositor = (1.0, 1.0, 1.0),
                   progress=None) -> Iterator[np.ndarray]:
-    """Yield (H, W, 3) uint8 frames of the moving Gaussians, from one camera or one per frame."""
+    """Yield (H, W, 3) uint8 frames of the moving Gaussians, from one camera or one per frame, over a colour
+    or inside a photo's scene (a :class:`~marionette.scene.SceneCompositor` of these Gaussians)."""
     cameras = [camera] * trajectory.num_frames if isinstance(camera, Camera) else list(camera)
     if len(cameras) != trajectory.num_frames:
         raise InputError(f"{len(cameras)} cameras for {trajectory.num_frames} frames")
     for t, cam in enumerate(cameras):
-        image = render(trajectory.frame(gaussians, t), cam, background).image
+        if isinstance(background, SceneCompositor):
+            frame = background.frame(trajectory.frame(gaussians, t), trajectory.frame(background.features, t), cam)
+        else:
+            frame = (np.clip(render(trajectory.frame(gaussians, t), cam, background).image, 0, 1) * 255
+                     + 0.5).astype(np.uint8)
         if progress:
             progress(t + 1, trajectory.num_frames)
-        yield (np.clip(image, 0, 1) * 255 + 0.5).astype(np.uint8)
+        yield frame
 
 
 def render_video(path: str | Path, target: LiftedTarget | Gaussians, trajectory: Trajectory,
                  camera: Camera | Sequence[Camera] | None = None, *, fps: float,
-                 background: tuple[float, float, float] = (1.0, 1.0, 1.0), reporter: Reporter | None = None) -> None:
+                 background: tuple[float, float, float] | SceneCompositor = (1.0, 1.0, 1.0),
+                 reporter: Reporter | None = None) -> None:
     """Render the trajectory and write it (MP4, GIF or a PNG folder, by suffix).
 
     ``target`` is a lifted target (its reference camera, zoomed out to keep
-    the motion in frame, is the default ``camera``) or bare Gaussians, which
-    need a ``camera`` (one, or one per frame).
+    the motion in frame, is the default ``camera``; inside a scene, the
+    photo's camera as it is) or bare Gaussians, which need a ``camera`` (one,
+    or one per frame). ``background``: a colour, or the photo's scene
+    (:func:`scene_compositor`).
     """
     reporter = reporter or Reporter(quiet=True)
     if isinstance(target, LiftedTarget):
         gaussians = target.gaussians
-        camera = camera if camera is not None else fit_view(target.camera, trajectory)
+        if camera is None:
+            camera = target.camera if isinstance(background, SceneCompositor) else fit_view(target.camera, trajectory)
     elif camera is None:
         raise InputError("render_video needs a camera for bare Gaussians")
     else:

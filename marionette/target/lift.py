@@ -89,6 +89,7 @@ class LiftedTarget:
     mask : (H, W) bool, object pixels of the input image.
     pixel_of : (N, 2) int32, the (u, v) pixel each Gaussian was made from.
     shape : ShapeChoice or None, the shape prior used and why (None for Gaussians taken as given).
+    image : (H, W, 3|4) uint8 or None, the photo lifted (None for Gaussians taken as given).
     """
 
     gaussians: Gaussians
@@ -96,6 +97,7 @@ class LiftedTarget:
     mask: np.ndarray
     pixel_of: np.ndarray
     shape: ShapeChoice | None = None
+    image: np.ndarray | None = None
 
 
 def alpha_mask(image: np.ndarray) -> np.ndarray | None:
@@ -259,4 +261,4 @@ def lift_image(image: np.ndarray, *, mask: np.ndarray | None = None, camera: Cam
                                          half[np.ix_(centre_v, centre_u)], camera, s, options.opacity,
                                          pixel_radius(mask))
     gaussians, _ = polish_reference(gaussians, camera, image, mask, options.polish)
-    return LiftedTarget(gaussians, camera, mask, pixel_of, choice)
+    return LiftedTarget(gaussians, camera, mask, pixel_of, choice, image)
