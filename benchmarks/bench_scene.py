@@ -32,7 +32,7 @@ import numpy as np
 
 from marionette import pipeline
 from marionette.geometry import axis_angle_to_matrix, make_transform
-from marionette.io import read_image, read_mask
+from marionette.io import read_image
 from marionette.prior import SpatPrior
 from marionette.render import render
 from marionette.scene import SceneCompositor, clean_plate
@@ -169,7 +169,8 @@ def main() -> None:
         row = rows["scene"]
         lines.append(f"| {name} | {row['plate_s']:.2f} | {row['seconds']:.3f} | {row['white_s']:.3f} |")
     lines += ["", "Pictures: [the vacated region](../images/scene_plate.png) (per photo: the photo, the region "
-              "replaced marked in magenta, filled by diffusion (`telea`), by shift-map patches (`patch`), by FSR (`fsr`, the default)) and "
+              "replaced marked in magenta, filled by diffusion (`telea`), by shift-map patches (`patch`), by FSR "
+              "(`fsr`, the default)) and "
               f"[frames](../images/scene_frames.png) (frames {', '.join(map(str, SHOWN))} in the scene, then the "
               "last frame with a 20° orbit)."]
     OUT.write_text("\n".join(lines) + "\n")

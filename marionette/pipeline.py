@@ -45,8 +45,8 @@ from .transfer.velocity import integrate
 
 __all__ = ["extract", "reconstruct",
            "load_target", "relative_depth", "check_target", "check_part_seeds", "transfer", "output_cameras",
-           "fit_view", "scene_compositor", "render_frames", "render_video", "write_ply_frames", "side_by_side", "write_side_by_side",
-           "write_preview", "source_intrinsics", "DEFAULT_MAX_SIDE", "PLY_FRAME_NAME"]
+           "fit_view", "scene_compositor", "render_frames", "render_video", "write_ply_frames", "side_by_side",
+           "write_side_by_side", "write_preview", "source_intrinsics", "DEFAULT_MAX_SIDE", "PLY_FRAME_NAME"]
 
 #: Names of the per-frame files of :func:`write_ply_frames` (a folder of only these may be replaced).
 PLY_FRAME_NAME = r"\d{5,}\.ply"
