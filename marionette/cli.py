@@ -28,12 +28,21 @@ from .errors import InputError
 from .geometry import rotation_angle_deg
 from .io import read_ply, read_prior, write_image, write_prior, write_splat_animation
 from .io.atomic import StagedOutputs, check_output_dir, check_output_folder, check_output_path, staged_outputs
-from .io.video import DEFAULT_MAX_PIXELS
-from .options import parse_background, parse_part_seeds, parse_parts, parse_scene_background, parse_size
+from .io.video import DEFAULT_MAX_PIXELS, MASK_FRAME_NAME
+from .options import (
+    parse_background,
+    parse_box,
+    parse_part_seeds,
+    parse_parts,
+    parse_point,
+    parse_scene_background,
+    parse_size,
+)
 from .plot import plot_prior
 from .progress import Reporter, interrupt_requested
 from .render import render
 from .render.camera_path import CAMERA_MOVES, check_camera_move, load_camera_path
+from .segment import Prompt
 from .source import ExtractOptions
 from .target.lift import LiftOptions
 from .target.shapes import SHAPES
@@ -250,6 +259,29 @@ MaxPixels = Annotated[int, typer.Option(
          " memory on long videos).")]
 Smooth = Annotated[float, typer.Option(help="Temporal smoothing of the poses (0: off).")]
 Plot = Annotated[Optional[Path], typer.Option(help="Also draw each part's rotation and translation to this PNG.")]
+SourcePoint = Annotated[Optional[list[str]], typer.Option(
+    help="A point X,Y on the object in the first source frame used, in its original pixels (repeatable): the "
+         "masks follow that object instead of the automatic choice.")]
+SourceBox = Annotated[Optional[str], typer.Option(
+    help="A box X0,Y0,X1,Y1 around the object in the first source frame used, in its original pixels.")]
+SourceExclude = Annotated[Optional[list[str]], typer.Option(
+    help="A point X,Y in the first source frame used that is not the object (repeatable).")]
+SaveMasks = Annotated[Optional[Path], typer.Option(
+    help="Also write the source masks used to this folder (00000.png …, one per frame used, the layout --masks "
+         "reads).")]
+
+
+def _prompt(prefix: str, points: Optional[list[str]], box: Optional[str],
+            exclude: Optional[list[str]]) -> Prompt | None:
+    """The ``--{prefix}-point/-box/-exclude`` options as a Prompt; None when none is given."""
+    if not points and box is None and not exclude:
+        return None
+    prompt = Prompt(tuple(_parsed(f"--{prefix}-point", parse_point, p) for p in points or ()),
+                    _parsed(f"--{prefix}-box", parse_box, box),
+                    tuple(_parsed(f"--{prefix}-exclude", parse_point, p) for p in exclude or ()))
+    if not prompt:
+        raise InputError(f"--{prefix}-exclude needs a --{prefix}-point or --{prefix}-box on the object too")
+    return prompt
 
 
 def _check_max_side(max_side: int) -> None:
@@ -258,7 +290,7 @@ def _check_max_side(max_side: int) -> None:
 
 
 def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, stride: int, max_side: int,
-             max_pixels: int, smooth: float, plot, session: _Session):
+             max_pixels: int, smooth: float, plot, prompt: Prompt | None, save_masks: Path | None, session: _Session):
     """Shared by ``extract`` and ``run``: check the options, extract, draw the plot."""
     parts_value = _parsed("--parts", parse_parts, parts)
     _check_max_side(max_side)
@@ -269,8 +301,12 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
     _output_file(plot, ".png", "--plot")
     options = ExtractOptions(parts=parts_value, smoothing=smooth)
     prior = pipeline.extract(source, masks=masks, depth=depth, focal=focal, max_side=max_side,
-                             max_pixels=max_pixels, start=start,
-                             end=end, stride=stride, options=options, reporter=session.reporter)
+                             max_pixels=max_pixels, start=start, end=end, stride=stride, options=options,
+                             prompt=prompt, reporter=session.reporter,
+                             masks_out=None if save_masks is None else session.staged.folder(save_masks,
+                                                                                            MASK_FRAME_NAME))
+    if save_masks is not None:
+        session.output("masks", save_masks)
     session.figures["source"] = _prior_figures(prior)
     session.reporter.message(_prior_line(prior))
     if plot is not None:
@@ -283,13 +319,16 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
 def extract(source: Annotated[Path, typer.Argument(help="Video file or folder of frames.")],
             output: Output, masks: Masks = None, depth: Depth = None, focal: Focal = None, parts: Parts = "1",
             start: Start = 0, end: End = None, stride: Stride = 1, max_side: MaxSide = pipeline.DEFAULT_MAX_SIDE,
-            max_pixels: MaxPixels = DEFAULT_MAX_PIXELS, smooth: Smooth = 1.0, plot: Plot = None, quiet: Quiet = False,
-            verbose: Verbose = False, json_summary: Json = False, config: Config = None) -> None:
+            max_pixels: MaxPixels = DEFAULT_MAX_PIXELS, smooth: Smooth = 1.0, plot: Plot = None,
+            source_point: SourcePoint = None, source_box: SourceBox = None, source_exclude: SourceExclude = None,
+            save_masks: SaveMasks = None, quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False,
+            config: Config = None) -> None:
     """Extract the SpaT prior (per-part rigid motion) from a source video."""
     _output_file(output, ".npz", "--output")
+    prompt = _prompt("source", source_point, source_box, source_exclude)
     with _session("extract", quiet, verbose, json_summary) as session:
         prior = _extract(source, masks, depth, focal, parts, start, end, stride, max_side, max_pixels, smooth, plot,
-                         session)
+                         prompt, save_masks, session)
         write_prior(session.stage(output), prior)
         session.output("prior", output)
 
@@ -329,6 +368,12 @@ Polish = Annotated[int, typer.Option(
          "second per step at 512x512; 0: off).")]
 TargetMask = Annotated[Optional[Path], typer.Option(
     help="Image marking the target object (default: alpha, else found automatically).")]
+TargetPoint = Annotated[Optional[list[str]], typer.Option(
+    help="A point X,Y on the object in the target image, in its own pixels (repeatable): picks the object instead "
+         "of the automatic mask.")]
+TargetBox = Annotated[Optional[str], typer.Option(help="A box X0,Y0,X1,Y1 around the object in the target image.")]
+TargetExclude = Annotated[Optional[list[str]], typer.Option(
+    help="A point X,Y in the target image that is not the object (repeatable).")]
 PlyDir = Annotated[Optional[Path], typer.Option(help="Also write each frame's Gaussians as DIR/00000.ply ….")]
 Splats = Annotated[Optional[Path], typer.Option(
     help="Also write the animated Gaussians as one .npz for `marionette view`.")]
@@ -356,6 +401,7 @@ class _Playback:
     camera_path: Path | None
     ply_dir: Path | None
     target_mask: Path | None
+    target_prompt: Prompt | None
     target_depth: Path | None
     shape: str
     polish: int
@@ -368,8 +414,8 @@ class _Playback:
 
 def _playback(output: Path, target: Path, frames, speed, loop, reverse, rotation_scale, translation_scale, fps,
               background, size,
-              camera, camera_amount, camera_path, ply_dir, target_mask, target_depth, shape, polish, anchor, part_seed,
-              refine, preview, splats) -> _Playback:
+              camera, camera_amount, camera_path, ply_dir, target_mask, target_prompt, target_depth, shape, polish,
+              anchor, part_seed, refine, preview, splats) -> _Playback:
     """Check every playback option (before any work starts) and the output paths."""
     _transfer_checks(frames, speed, fps)
     _check_loop(loop)
@@ -396,14 +442,15 @@ def _playback(output: Path, target: Path, frames, speed, loop, reverse, rotation
         raise InputError(f"--polish must be a number of steps within 0..10000, got {polish}")
     if target_mask is not None and not target_mask.is_file():
         raise InputError(f"target mask {target_mask} does not exist")
-    pipeline.check_target(target, target_mask, target_depth)
+    pipeline.check_target(target, target_mask, target_depth, target_prompt)
     background = _parsed("--background", parse_scene_background, background)
     if background == "scene" and target.suffix.lower() == ".ply":
         raise InputError("--background scene needs an image target: a .ply has no scene around it")
     return _Playback(frames, speed, loop, reverse, rotation_scale, translation_scale, fps,
                      background, _parsed("--size", parse_size, size),
-                     camera, camera_amount, camera_path, ply_dir, target_mask, target_depth, shape, polish, anchor,
-                     _parsed("--part-seed", parse_part_seeds, part_seed or None), refine, preview, splats)
+                     camera, camera_amount, camera_path, ply_dir, target_mask, target_prompt, target_depth, shape,
+                     polish, anchor, _parsed("--part-seed", parse_part_seeds, part_seed or None), refine, preview,
+                     splats)
 
 
 def _transfer_and_render(prior, target: Path, output: Path, play: _Playback, session: _Session):
@@ -414,7 +461,8 @@ def _transfer_and_render(prior, target: Path, output: Path, play: _Playback, ses
                     else load_camera_path(play.camera_path, output_length(prior.num_frames, play.speed, play.frames)))
     with session.reporter.stage("lifting target", 1) as progress:
         lifted = pipeline.load_target(target, size=play.size, mask=play.target_mask, depth=play.target_depth,
-                                      options=LiftOptions(shape=play.shape, polish=play.polish), prior=prior)
+                                      options=LiftOptions(shape=play.shape, polish=play.polish), prior=prior,
+                                      prompt=play.target_prompt)
         progress(1, 1)
     if lifted.shape is not None:
         session.reporter.detail(lifted.shape.describe())
@@ -432,6 +480,10 @@ def _transfer_and_render(prior, target: Path, output: Path, play: _Playback, ses
         with session.reporter.stage("clean plate", 1) as progress:
             background = pipeline.scene_compositor(lifted)
             progress(1, 1)
+        outside = pipeline.frames_outside(lifted.gaussians, trajectory, cameras)
+        if outside:
+            warnings.warn(f"the object's centre leaves the photo in {outside} of {trajectory.num_frames} frames; "
+                          "--translation-scale 0 keeps it in place", stacklevel=1)
     video = session.stage(output)
     pipeline.render_video(video, lifted, trajectory, cameras, fps=play.fps or prior.fps,
                           background=background, reporter=session.reporter)
@@ -459,13 +511,15 @@ def transfer(prior: Annotated[Path, typer.Argument(help="SpaT prior .npz.")],
              rotation_scale: RotationScale = 1.0, translation_scale: TranslationScale = 1.0, fps: Fps = None,
              background: SceneBackground = "1,1,1", size: Size = None, camera: CameraMove = "static",
              camera_amount: CameraAmount = None, camera_path: CameraPath = None, ply_dir: PlyDir = None,
-             target_mask: TargetMask = None, target_depth: TargetDepth = None, shape: TargetShape = "auto",
+             target_mask: TargetMask = None, target_point: TargetPoint = None, target_box: TargetBox = None,
+             target_exclude: TargetExclude = None, target_depth: TargetDepth = None, shape: TargetShape = "auto",
              polish: Polish = 0, anchor: Anchor = "centroid", part_seed: PartSeed = None, refine: Refine = True,
              preview: Preview = None, splats: Splats = None, quiet: Quiet = False, verbose: Verbose = False,
              json_summary: Json = False, config: Config = None) -> None:
     """Apply a SpaT prior to a target image or .ply and render the video."""
     play = _playback(output, target, frames, speed, loop, reverse, rotation_scale, translation_scale, fps,
-                     background, size, camera, camera_amount, camera_path, ply_dir, target_mask, target_depth, shape,
+                     background, size, camera, camera_amount, camera_path, ply_dir, target_mask,
+                     _prompt("target", target_point, target_box, target_exclude), target_depth, shape,
                      polish, anchor, part_seed, refine, preview, splats)
     with _session("transfer", quiet, verbose, json_summary) as session:
         _transfer_and_render(read_prior(prior), target, output, play, session)
@@ -477,24 +531,29 @@ def run(source: Annotated[Path, typer.Argument(help="Video file or folder of fra
         output: Output, masks: Masks = None, depth: Depth = None, focal: Focal = None, parts: Parts = "1",
         start: Start = 0, end: End = None, stride: Stride = 1, max_side: MaxSide = pipeline.DEFAULT_MAX_SIDE,
         max_pixels: MaxPixels = DEFAULT_MAX_PIXELS, smooth: Smooth = 1.0, plot: Plot = None,
-        frames: Frames = None, speed: Speed = 1.0, loop: Loop = "hold", reverse: Reverse = False,
+        source_point: SourcePoint = None, source_box: SourceBox = None, source_exclude: SourceExclude = None,
+        save_masks: SaveMasks = None, frames: Frames = None, speed: Speed = 1.0, loop: Loop = "hold",
+        reverse: Reverse = False,
         rotation_scale: RotationScale = 1.0, translation_scale: TranslationScale = 1.0, fps: Fps = None,
         background: SceneBackground = "1,1,1", size: Size = None, camera: CameraMove = "static",
         camera_amount: CameraAmount = None, camera_path: CameraPath = None, ply_dir: PlyDir = None,
-        target_mask: TargetMask = None, target_depth: TargetDepth = None, shape: TargetShape = "auto",
+        target_mask: TargetMask = None, target_point: TargetPoint = None, target_box: TargetBox = None,
+        target_exclude: TargetExclude = None, target_depth: TargetDepth = None, shape: TargetShape = "auto",
         polish: Polish = 0, anchor: Anchor = "centroid", part_seed: PartSeed = None, refine: Refine = True,
         preview: Preview = None, splats: Splats = None, side_by_side: SideBySide = None, report: Report = None,
         quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False, config: Config = None) -> None:
     """Extract the source's motion and transfer it onto the target in one go."""
     play = _playback(output, target, frames, speed, loop, reverse, rotation_scale, translation_scale, fps,
-                     background, size, camera, camera_amount, camera_path, ply_dir, target_mask, target_depth, shape,
+                     background, size, camera, camera_amount, camera_path, ply_dir, target_mask,
+                     _prompt("target", target_point, target_box, target_exclude), target_depth, shape,
                      polish, anchor, part_seed, refine, preview, splats)
+    prompt = _prompt("source", source_point, source_box, source_exclude)
     if side_by_side is not None:
         _video_output(side_by_side)
     _output_file(report, ".json", "--report")
     with _session("run", quiet, verbose, json_summary) as session:
         prior = _extract(source, masks, depth, focal, parts, start, end, stride, max_side, max_pixels, smooth, plot,
-                         session)
+                         prompt, save_masks, session)
         trajectory, video = _transfer_and_render(prior, target, output, play, session)
         if side_by_side is not None:
             times = source_times(trajectory.num_frames, prior.num_frames - 1, speed=speed, loop=loop, reverse=reverse)
@@ -567,6 +626,8 @@ def eval_self_cmd(source: Annotated[Path, typer.Argument(help="Video file or fol
                   target: Annotated[str, typer.Option(
                       help="What is moved: 'reconstruction' (the object fitted to the whole video) or 'frame0' "
                            "(source frame 0 lifted alone, the paper's protocol).")] = "reconstruction",
+                  source_point: SourcePoint = None, source_box: SourceBox = None,
+                  source_exclude: SourceExclude = None, save_masks: SaveMasks = None,
                   quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False,
                   config: Config = None) -> None:
     """Self-transfer (the paper's Table 1): the source object as the target, scored against the masked source."""
@@ -580,12 +641,16 @@ def eval_self_cmd(source: Annotated[Path, typer.Argument(help="Video file or fol
     options = replace(EVAL_EXTRACT, parts=_parsed("--parts", parse_parts, parts))
     if masks is not None and not masks.is_dir():
         raise InputError(f"mask folder {masks} does not exist")
+    prompt = _prompt("source", source_point, source_box, source_exclude)
     check_output_dir(output)
     with _session("eval-self", quiet, verbose, json_summary) as session:
+        masks_out = None if save_masks is None else session.staged.folder(save_masks, MASK_FRAME_NAME)
         metrics = eval_self(source, masks, session.staged.folder(output), max_side=max_side, options=options,
-                            target=target, reporter=session.reporter)
+                            target=target, prompt=prompt, masks_out=masks_out, reporter=session.reporter)
         for kind, name in EVAL_SELF_OUTPUTS.items():
             session.output(kind, output / name)
+        if save_masks is not None:
+            session.output("masks", save_masks)
         session.figures.update({k: metrics[k] for k in ("psnr", "ssim", "lpips", "motion_fidelity")})
         if not json_summary:
             fidelity = "n/a" if metrics["motion_fidelity"] is None else f"{metrics['motion_fidelity']:.3f}"

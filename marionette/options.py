@@ -12,7 +12,8 @@ from typing import Any
 
 from .camera import MAX_IMAGE_SIDE
 
-__all__ = ["MAX_PARTS", "parse_background", "parse_size", "parse_parts", "parse_part_seeds"]
+__all__ = ["MAX_PARTS", "parse_background", "parse_scene_background", "parse_size", "parse_parts", "parse_part_seeds",
+           "parse_point", "parse_box"]
 
 #: Most rigid parts ``--parts`` may ask for.
 MAX_PARTS = 8
@@ -48,6 +49,24 @@ def parse_scene_background(value: Any) -> tuple[float, float, float] | str:
         return parse_background(value)
     except ValueError:
         raise ValueError("must be R,G,B within 0-1 or 0-255, or 'scene'") from None
+
+
+def parse_point(value: Any) -> tuple[float, float]:
+    """``"X,Y"`` or ``[X, Y]``, pixel coordinates → floats."""
+    try:
+        x, y = _numbers(value, 2, ",")
+    except ValueError:
+        raise ValueError("must be X,Y (two numbers, pixels)") from None
+    return x, y
+
+
+def parse_box(value: Any) -> tuple[float, float, float, float]:
+    """``"X0,Y0,X1,Y1"`` or a list of four, pixel coordinates → floats (checked against the image later)."""
+    try:
+        x0, y0, x1, y1 = _numbers(value, 4, ",")
+    except ValueError:
+        raise ValueError("must be X0,Y0,X1,Y1 (four numbers, pixels)") from None
+    return x0, y0, x1, y1
 
 
 def parse_size(value: Any) -> tuple[int, int]:

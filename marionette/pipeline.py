@@ -28,14 +28,17 @@ from .io import (
     write_video,
 )
 from .io.atomic import atomic_folder
-from .io.video import DEFAULT_MAX_PIXELS, open_video
+from .io.video import DEFAULT_MAX_PIXELS, open_video, write_masks
 from .prior import SpatPrior
 from .progress import Reporter
 from .render import render
 from .render.camera_path import camera_path, load_camera_path
 from .scene import SceneCompositor, clean_plate
+from .segment import Prompt, prompted_mask
 from .source import ExtractOptions, extract_prior
 from .source.depth import read_depth_map, read_depths
+from .source.foreground import auto_masks
+from .source.prompted import prompted_masks
 from .target.lift import LiftedTarget, LiftOptions, alpha_mask, lift_image
 from .trajectory import Trajectory
 from .transfer.controls import retime, scale_motion
@@ -43,10 +46,10 @@ from .transfer.parts import labels_from_seeds, seeds_from_layout
 from .transfer.refine import RefineOptions
 from .transfer.velocity import integrate
 
-__all__ = ["extract", "reconstruct",
+__all__ = ["extract", "source_masks", "reconstruct",
            "load_target", "relative_depth", "check_target", "check_part_seeds", "transfer", "output_cameras",
-           "fit_view", "scene_compositor", "render_frames", "render_video", "write_ply_frames", "side_by_side",
-           "write_side_by_side", "write_preview", "source_intrinsics", "DEFAULT_MAX_SIDE", "PLY_FRAME_NAME"]
+           "fit_view", "scene_compositor", "frames_outside", "render_frames", "render_video", "write_ply_frames",
+           "side_by_side", "write_side_by_side", "write_preview", "source_intrinsics", "DEFAULT_MAX_SIDE", "PLY_FRAME_NAME"]
 
 #: Names of the per-frame files of :func:`write_ply_frames` (a folder of only these may be replaced).
 PLY_FRAME_NAME = r"\d{5,}\.ply"
@@ -63,14 +66,37 @@ def source_intrinsics(width: int, height: int, focal: float | None = None) -> np
     return np.array([[f, 0, (width - 1) / 2], [0, f, (height - 1) / 2], [0, 0, 1]])
 
 
+def source_masks(video, masks: str | Path | None = None, prompt: Prompt | None = None, *, packed: bool = False,
+                 reporter: Reporter | None = None):
+    """The object masks of a source video (:class:`~marionette.io.video.Video` or an opened one): read from the
+    ``masks`` folder, or following the object ``prompt`` picks on the first frame used (in pixels of the
+    original video), or found automatically. (T, H, W) bool, or PackedMasks with ``packed``."""
+    reporter = reporter or Reporter(quiet=True)
+    t, h, w = video.frames.shape[:3]
+    if masks is not None:
+        if prompt is not None:
+            raise InputError("give the object as a mask folder or as a prompt, not both")
+        return read_masks(masks, count=t, size=(w, h), indices=video.indices, packed=packed)
+    if prompt is not None:
+        prompt.check(round(w / video.scale), round(h / video.scale), "first frame")
+        with reporter.stage("following the object", t) as progress:
+            return prompted_masks(video.frames, prompt.scaled(video.scale), packed=packed, progress=progress)
+    with reporter.stage("finding the object", t) as progress:
+        return auto_masks(video.frames, packed=packed, progress=progress)
+
+
 def extract(source: str | Path, *, masks: str | Path | None = None, depth: str | Path | None = None,
             focal: float | None = None, max_side: int = DEFAULT_MAX_SIDE, max_pixels: int | None = DEFAULT_MAX_PIXELS,
             start: int = 0, end: int | None = None, stride: int = 1, options: ExtractOptions = ExtractOptions(),
+            prompt: Prompt | None = None, masks_out: str | Path | None = None,
             reporter: Reporter | None = None) -> SpatPrior:
     """Source video (file or frame folder) → SpaT prior.
 
     ``masks`` and ``depth`` are folders with one image per source frame (or
-    per selected frame); without masks the object is found automatically.
+    per selected frame); without masks the object is the one ``prompt``
+    (points and a box on the first frame used, original pixels) picks, or
+    is found automatically. ``masks_out``: a folder to write the masks used
+    to (one PNG per selected frame, at the frames' working size).
     ``start``, ``end``, ``stride`` select frames; frames are downscaled to a
     long side of ``max_side``, and further (with a warning) when all frames
     together hold more than ``max_pixels`` pixels. ``focal`` is in pixels of
@@ -80,8 +106,11 @@ def extract(source: str | Path, *, masks: str | Path | None = None, depth: str |
     reporter = reporter or Reporter(quiet=True)
     video = open_video(source, max_side=max_side, max_pixels=max_pixels, start=start, end=end, stride=stride)
     t, h, w = video.frames.shape[:3]
-    mask_stack = (None if masks is None
-                  else read_masks(masks, count=t, size=(w, h), indices=video.indices, packed=True))
+    mask_stack = None
+    if masks is not None or prompt is not None or masks_out is not None:
+        mask_stack = source_masks(video, masks, prompt, packed=True, reporter=reporter)
+    if masks_out is not None:
+        write_masks(masks_out, mask_stack)
     depth_stack = None if depth is None else read_depths(depth, count=t, size=(w, h), indices=video.indices,
                                                          lazy=True)
     k = source_intrinsics(w, h, None if focal is None else focal * video.scale)
@@ -165,7 +194,7 @@ def relative_depth(prior: SpatPrior, limits: tuple[float, float] = (2.0, 200.0))
 
 def load_target(target: str | Path, *, size: tuple[int, int] | None = None, mask: str | Path | None = None,
                 depth: str | Path | None = None, options: LiftOptions = LiftOptions(),
-                prior: SpatPrior | None = None) -> LiftedTarget:
+                prior: SpatPrior | None = None, prompt: Prompt | None = None) -> LiftedTarget:
     """Target image (RGB/RGBA) or 3DGS ``.ply`` → Gaussians with a reference camera.
 
     With a ``prior``, an image is lifted at the source's relative depth
@@ -175,7 +204,9 @@ def load_target(target: str | Path, *, size: tuple[int, int] | None = None, mask
     :func:`~marionette.target.lift.object_mask`). ``depth`` is a depth
     map file of the image (16-bit PNG in millimetres, or ``.npy``; any
     unit) that shapes the front surface instead of the inflated silhouette.
-    A ``.ply`` is taken
+    ``prompt`` (points and a box in the image's own pixels) picks the object
+    instead of the automatic mask
+    (:func:`~marionette.segment.prompt.prompted_mask`). A ``.ply`` is taken
     as it is and viewed from the front (along +z) at ``size`` (512x512 by
     default).
     """
@@ -189,24 +220,33 @@ def load_target(target: str | Path, *, size: tuple[int, int] | None = None, mask
         mask = np.zeros((height, width), bool)
         mask[pix[z > 0, 1], pix[z > 0, 0]] = True
         return LiftedTarget(g, cam, mask, pix)
-    image, object_pixels, depth_map = _read_target_image(path, mask, depth)
+    image, object_pixels, depth_map = _read_target_image(path, mask, depth, prompt)
+    if prompt is not None:
+        scaled = prompt if size is None else prompt.scaled(size[0] / image.shape[1], size[1] / image.shape[0])
     if size is not None and (image.shape[1], image.shape[0]) != tuple(size):
         image = cv2.resize(image, tuple(size), interpolation=cv2.INTER_AREA)
         if object_pixels is not None:
             object_pixels = cv2.resize(object_pixels.view(np.uint8), tuple(size), interpolation=cv2.INTER_NEAREST) > 0
         if depth_map is not None:  # nearest: depths of different surfaces never mix
             depth_map = cv2.resize(depth_map, tuple(size), interpolation=cv2.INTER_NEAREST)
+    if prompt is not None:
+        object_pixels = prompted_mask(image[..., :3], scaled)
     if prior is not None and options.relative_depth is None:
         options = replace(options, relative_depth=relative_depth(prior))
     return lift_image(image, mask=object_pixels, depth_map=depth_map, options=options)
 
 
-def _read_target_image(path: Path, mask: str | Path | None, depth: str | Path | None = None
-                       ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
-    """(H, W, 3|4) uint8 target image, its (H, W) bool mask and (H, W) depth map files' content if given; checked."""
+def _read_target_image(path: Path, mask: str | Path | None, depth: str | Path | None = None,
+                       prompt: Prompt | None = None) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """(H, W, 3|4) uint8 target image, its (H, W) bool mask and (H, W) depth map files' content if given; checked
+    (a ``prompt`` against the image's size)."""
     image = read_image(path)
     size = (image.shape[1], image.shape[0])
     depth_map = None if depth is None else read_depth_map(depth, size)
+    if prompt is not None:
+        if mask is not None:
+            raise InputError("give the target object as a mask file or as a prompt, not both")
+        prompt.check(*size, "target image")
     if mask is None:
         alpha_mask(image)  # a fully transparent image is refused here
         return image, None, depth_map
@@ -217,15 +257,16 @@ def _read_target_image(path: Path, mask: str | Path | None, depth: str | Path | 
     return image, object_pixels, depth_map
 
 
-def check_target(target: str | Path, mask: str | Path | None = None, depth: str | Path | None = None) -> None:
-    """Reject a target (and its mask and depth files) that cannot be lifted, before any long work starts."""
+def check_target(target: str | Path, mask: str | Path | None = None, depth: str | Path | None = None,
+                 prompt: Prompt | None = None) -> None:
+    """Reject a target (and its mask and depth files, its prompt) that cannot be lifted, before any long work."""
     path = Path(target)
     if path.suffix.lower() == ".ply":
-        if mask is not None or depth is not None:
-            raise InputError("a target mask or depth map applies to an image target, not to a .ply")
+        if mask is not None or depth is not None or prompt is not None:
+            raise InputError("a target mask, prompt or depth map applies to an image target, not to a .ply")
         read_ply(path)
     else:
-        _read_target_image(path, mask, depth)
+        _read_target_image(path, mask, depth, prompt)
 
 
 def check_part_seeds(prior: SpatPrior, part_seeds: dict[int, tuple[float, float]]) -> None:
@@ -303,6 +344,16 @@ def scene_compositor(target: LiftedTarget, *, inpaint: str = "fsr", detail: bool
         raise InputError("a scene background needs an image target (a .ply has no scene around it)")
     plate = clean_plate(target.image, target.mask, inpaint)
     return SceneCompositor.from_lift(target.gaussians, target.camera, target.pixel_of, target.image, plate, detail)
+
+
+def frames_outside(gaussians: Gaussians, trajectory: Trajectory, cameras: Sequence[Camera]) -> int:
+    """How many frames show the Gaussians' centroid outside the image (or behind the camera)."""
+    count = 0
+    for t, cam in enumerate(cameras):
+        uv, z = cam.project(trajectory.means[t].mean(axis=0, dtype=np.float64)[None])
+        (u, v), z = uv[0], z[0]
+        count += int(not (z > 0 and 0 <= u <= cam.width - 1 and 0 <= v <= cam.height - 1))
+    return count
 
 
 def render_frames(gaussians: Gaussians, trajectory: Trajectory, camera: Camera | Sequence[Camera],

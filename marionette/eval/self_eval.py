@@ -22,13 +22,14 @@ import numpy as np
 from .. import pipeline
 from ..camera import Camera
 from ..errors import InputError
-from ..io import read_masks, read_video, write_video
+from ..io import read_video, write_video
 from ..io.atomic import atomic_path, check_output_dir, write_text
+from ..io.video import write_masks
 from ..prior import SpatPrior
 from ..progress import Reporter
-from ..source import ExtractOptions, extract_prior
-from ..source.foreground import auto_masks
 from ..reconstruct import ReconstructOptions, reconstruct_object
+from ..segment import Prompt
+from ..source import ExtractOptions, extract_prior
 from ..target.lift import LiftedTarget, LiftOptions, lift_image
 from ..trajectory import Trajectory
 from .fidelity import motion_fidelity
@@ -79,6 +80,7 @@ def eval_self(source: str | Path, masks: str | Path | None = None, output_dir: s
               max_side: int = pipeline.DEFAULT_MAX_SIDE, options: ExtractOptions = EVAL_EXTRACT,
               fidelity: bool = True, target: str = "reconstruction",
               reconstruct_options: ReconstructOptions = ReconstructOptions(),
+              prompt: Prompt | None = None, masks_out: str | Path | None = None,
               reporter: Reporter | None = None) -> dict:
     """Self-transfer of a source video, scored against the source (paper Table 1).
 
@@ -86,7 +88,8 @@ def eval_self(source: str | Path, masks: str | Path | None = None, output_dir: s
     ----------
     source : video file or folder of frames.
     masks : folder of per-frame mask PNGs (non-zero = object), or None for
-        automatic masks (:func:`~marionette.source.foreground.auto_masks`).
+        the object ``prompt`` picks on frame 0 (original pixels), or else
+        automatic masks (:func:`~marionette.pipeline.source_masks`).
     output_dir : folder, created if needed. Written (each file atomically;
         names in :data:`EVAL_SELF_OUTPUTS`): ``video.mp4`` (the render),
         ``metrics.json``, ``frames.csv`` (per-frame PSNR and SSIM),
@@ -102,6 +105,7 @@ def eval_self(source: str | Path, masks: str | Path | None = None, output_dir: s
         poses; ``"frame0"``: source frame 0 lifted alone (:func:`self_target`),
         moved by the prior in the source world frame (the paper's protocol).
     reconstruct_options : settings of the reconstruction.
+    masks_out : folder to write the masks used to (one PNG per frame), or None.
 
     Returns
     -------
@@ -119,11 +123,9 @@ def eval_self(source: str | Path, masks: str | Path | None = None, output_dir: s
     video = read_video(source, max_side=max_side)
     frames = video.frames
     t, h, w = frames.shape[:3]
-    if masks is None:
-        with reporter.stage("foreground masks", t) as progress:
-            mask_stack = auto_masks(frames, progress=progress)
-    else:
-        mask_stack = read_masks(masks, count=t, size=(w, h), indices=video.indices)
+    mask_stack = pipeline.source_masks(video, masks, prompt, reporter=reporter)
+    if masks_out is not None:
+        write_masks(masks_out, mask_stack)
     prior = extract_prior(frames, mask_stack, pipeline.source_intrinsics(w, h), video.fps, options=options,
                           reporter=reporter)
     out.mkdir(exist_ok=True)

@@ -32,6 +32,7 @@ from ..errors import InputError
 from .atomic import atomic_folder, atomic_path
 
 __all__ = ["Video", "VideoFrames", "PackedMasks", "open_video", "read_video", "read_masks", "read_mask", "read_image",
+           "write_masks", "MASK_FRAME_NAME",
            "write_video", "write_image"]
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
@@ -609,6 +610,20 @@ def write_video(path: str | Path, frames: Iterable[np.ndarray] | np.ndarray, fps
             _write_gif(tmp, _checked_frames(frames), fps)
     else:
         raise InputError(f"{path}: unsupported video format '{path.suffix}' (use .mp4, .gif or a folder)")
+
+
+#: Names of the per-frame files of :func:`write_masks` (a folder of only these may be replaced).
+MASK_FRAME_NAME = r"\d{5,}\.png"
+
+
+def write_masks(folder: str | Path, masks: np.ndarray | PackedMasks) -> None:
+    """Write (T, H, W) bool masks as ``folder/00000.png`` … (0 / 255), the layout :func:`read_masks` reads.
+
+    The folder appears complete or not at all (see :func:`~marionette.io.atomic.atomic_folder`).
+    """
+    with atomic_folder(folder, MASK_FRAME_NAME) as tmp:
+        for t in range(len(masks)):
+            (tmp / f"{t:05d}.png").write_bytes(_encode(np.asarray(masks[t], bool).astype(np.uint8) * 255, ".png"))
 
 
 def write_image(path: str | Path, image: np.ndarray) -> None:

@@ -6,12 +6,14 @@
   model-free fallback;
 - :func:`refine_with_grabcut`: a saliency map's boundary snapped to colour
   edges by GrabCut;
-- :class:`SalientModel`: the network itself, ``predict`` → (H, W) probabilities.
+- :class:`SalientModel`: the network itself, ``predict`` → (H, W) probabilities;
+- :func:`prompted_mask`: the object a user clicked or boxed (:class:`Prompt`).
 
 Images are RGB ``uint8`` (H, W, 3); masks are (H, W) bool.
 """
 
 from ._grabcut import grabcut_mask, refine_with_grabcut
 from ._u2net import SalientModel, salient_mask
+from .prompt import Prompt, prompted_mask
 
-__all__ = ["SalientModel", "salient_mask", "grabcut_mask", "refine_with_grabcut"]
+__all__ = ["SalientModel", "salient_mask", "grabcut_mask", "refine_with_grabcut", "Prompt", "prompted_mask"]

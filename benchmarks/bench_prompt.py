@@ -1,0 +1,113 @@
+"""Choosing the object with a click (issue 18): prompted source masks against the DAVIS masks.
+
+For each DAVIS clip in ``../shared/data/videos``, frame 0's prompt is taken from its ground-truth mask as
+a user would give it: one click at the point deepest inside the object (farthest from its outline), or
+the object's bounding box. The prompted masks (:func:`~marionette.source.prompted.prompted_masks`) are
+compared with the DAVIS masks on every frame (IoU: mean, minimum, and on the last frame), next to the
+automatic masks (:func:`~marionette.source.foreground.auto_masks`), and timed. A contact sheet per clip
+(``--sheets``): the click and the prompted mask (green) against the DAVIS outline (red).
+Writes ``docs/benchmarks/prompt.md``.
+
+    flock /tmp/marionette-bench.lock python benchmarks/bench_prompt.py [--sheets docs/images]
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+from scipy import ndimage
+
+from marionette.io.video import read_masks, read_video
+from marionette.segment.prompt import Prompt
+from marionette.source.foreground import auto_masks
+from marionette.source.prompted import prompted_masks
+
+ROOT = Path(__file__).resolve().parents[1]
+VIDEOS = ROOT.parent / "shared" / "data" / "videos"
+CLIPS = ("davis_car-turn", "davis_car-shadow", "davis_train")
+OUT = ROOT / "docs" / "benchmarks" / "prompt.md"
+
+
+def iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(T,) IoU of (T, H, W) bool masks."""
+    inter = (a & b).sum(axis=(1, 2))
+    union = (a | b).sum(axis=(1, 2))
+    return np.where(union > 0, inter / np.maximum(union, 1), 1.0)
+
+
+def click(mask: np.ndarray) -> tuple[float, float]:
+    """The pixel deepest inside ``mask`` (H, W) bool: where a user clicks on an object."""
+    depth = ndimage.distance_transform_edt(mask)
+    y, x = np.unravel_index(np.argmax(depth), depth.shape)
+    return float(x), float(y)
+
+
+def box(mask: np.ndarray) -> tuple[float, float, float, float]:
+    ys, xs = np.nonzero(mask)
+    return float(xs.min()), float(ys.min()), float(xs.max()), float(ys.max())
+
+
+def sheet(frames: np.ndarray, masks: np.ndarray, truth: np.ndarray, point, path: Path, count: int = 5) -> None:
+    tiles = []
+    for t in np.linspace(0, len(frames) - 1, count).round().astype(int):
+        tile = frames[t].copy()
+        tile[masks[t]] = (0.5 * tile[masks[t]] + [0, 127, 0]).astype(np.uint8)
+        contours, _ = cv2.findContours(truth[t].astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        cv2.drawContours(tile, contours, -1, (255, 0, 0), 2)
+        if t == 0:
+            cv2.drawMarker(tile, (round(point[0]), round(point[1])), (255, 255, 0), cv2.MARKER_CROSS, 24, 3)
+        tiles.append(cv2.resize(tile, (round(200 * tile.shape[1] / tile.shape[0]), 200), interpolation=cv2.INTER_AREA))
+    cv2.imwrite(str(path), cv2.cvtColor(np.concatenate(tiles, axis=1), cv2.COLOR_RGB2BGR))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sheets", type=Path, default=ROOT / "docs" / "images")
+    args = parser.parse_args()
+    rows = []
+    for clip in CLIPS:
+        folder = VIDEOS / clip
+        if not (folder / "frames").is_dir():
+            continue
+        video = read_video(folder / "frames")
+        frames = video.frames
+        t_count, h, w = frames.shape[:3]
+        truth = read_masks(folder / "masks", count=t_count, size=(w, h))
+        point = click(truth[0])
+        results = {}
+        for label, make in (("automatic", lambda: auto_masks(frames)),
+                            ("one click", lambda: prompted_masks(frames, Prompt(points=(point,)))),
+                            ("box", lambda: prompted_masks(frames, Prompt(box=box(truth[0]))))):
+            start = time.perf_counter()
+            masks = make()
+            seconds = time.perf_counter() - start
+            scores = iou(masks, truth)
+            results[label] = scores
+            rows.append((clip, label, scores.mean(), scores.min(), scores[-1], seconds, t_count))
+            print(rows[-1], flush=True)
+            if label == "one click":
+                sheet(frames, masks, truth, point, args.sheets / f"prompt_{clip.split('_', 1)[-1]}.png")
+    lines = ["# Choosing the object with a click", "",
+             f"`python benchmarks/bench_prompt.py` on {platform.machine()}, Python {platform.python_version()}. "
+             "Frame 0's prompt comes from its DAVIS mask as a user would give it: one click at the point deepest "
+             "inside the object, or the object's bounding box. Prompted masks follow the object through the clip "
+             "(flow, then GrabCut on each frame); IoU against the DAVIS masks on every frame, next to the "
+             "automatic masks (saliency and motion, no prompt).", "",
+             "| clip | masks | mean IoU | min IoU | last frame IoU | seconds | frames |",
+             "|---|---|---:|---:|---:|---:|---:|"]
+    for clip, label, mean, low, last, seconds, count in rows:
+        lines.append(f"| {clip} | {label} | {mean:.3f} | {low:.3f} | {last:.3f} | {seconds:.1f} | {count} |")
+    lines += ["", "Contact sheets (the click as a cross on frame 0; prompted mask green, DAVIS outline red): "
+              + ", ".join(f"[{c.split('_', 1)[-1]}](../images/prompt_{c.split('_', 1)[-1]}.png)" for c in CLIPS)
+              + "."]
+    OUT.write_text("\n".join(lines) + "\n")
+    print(OUT.read_text())
+
+
+if __name__ == "__main__":
+    main()

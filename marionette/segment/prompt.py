@@ -1,0 +1,195 @@
+"""The object chosen by a click: masks from point and box prompts.
+
+A prompt is what a user gives on an image: points on the object, points
+that are not on it, and a box around it, in the image's pixels. The mask
+follows from it in three steps:
+
+1. **Where to look.** The box (when given) bounds the object; the salient-
+   object model runs on the box's neighbourhood, at its native resolution, so
+   a small object is seen as well as a large one. Without a box, the model runs
+   on the whole image and only its salient components under (or next to) a
+   point are kept: a click picks one of several salient things.
+2. **GrabCut**, seeded by the prompt: a disc around each point is sure
+   object, a disc around each excluded point sure background, everything
+   outside the box sure background; the saliency kept marks the probable
+   object, the rest of the box the probable background. A click on
+   something the model does not find salient still grows into that thing
+   (a disc of probable object around the point starts it).
+3. **Clean-up.** The components holding a point (or, with a box alone, the
+   largest ones) with small holes filled; excluded points stay out.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from ..errors import InputError
+from ._grabcut import check_image, keep_main_object
+from ._u2net import SalientModel, default_model
+
+__all__ = ["Prompt", "prompted_mask"]
+
+#: Radius of a point's sure disc, as a share of the image's diagonal.
+_POINT_RADIUS = 0.01
+#: Radius of the probable-object disc that starts an object the model missed, as a share of the diagonal.
+_SEED_RADIUS = 0.04
+#: The box's neighbourhood the salient model sees, as a share of the box's size on each side.
+_BOX_MARGIN = 0.15
+#: A salient component counts as clicked within this share of the diagonal from a point.
+_TOUCH = 0.02
+
+
+@dataclass(frozen=True)
+class Prompt:
+    """Points on the object, points off it, and a box around it, in pixels of one image.
+
+    points, exclude : tuples of (x, y); box : (x0, y0, x1, y1) or None.
+    """
+
+    points: tuple[tuple[float, float], ...] = ()
+    box: tuple[float, float, float, float] | None = None
+    exclude: tuple[tuple[float, float], ...] = field(default=())
+
+    def __bool__(self) -> bool:
+        """True when it says where the object is (a point or a box; excluded points alone do not)."""
+        return bool(self.points) or self.box is not None
+
+    def check(self, width: int, height: int, what: str = "image") -> None:
+        """Raise :class:`InputError` unless every point lies in a ``width`` x ``height`` image and the box has area."""
+        for name, points in (("point", self.points), ("excluded point", self.exclude)):
+            for x, y in points:
+                if not (np.isfinite(x) and np.isfinite(y) and 0 <= x <= width - 1 and 0 <= y <= height - 1):
+                    raise InputError(f"{name} {_xy(x, y)} lies outside the {width}x{height} {what}")
+        if self.box is not None:
+            x0, y0, x1, y1 = self.box
+            if not all(np.isfinite(v) for v in self.box):
+                raise InputError(f"box {self.box} is not four finite numbers")
+            if x1 <= x0 or y1 <= y0:
+                raise InputError(f"box {_xy(x0, y0)}-{_xy(x1, y1)} has no area (need X0 < X1 and Y0 < Y1)")
+            if x1 < 0 or y1 < 0 or x0 > width - 1 or y0 > height - 1:
+                raise InputError(f"box {_xy(x0, y0)}-{_xy(x1, y1)} lies outside the {width}x{height} {what}")
+        if not self and self.exclude:
+            raise InputError("excluded points need a point or a box on the object too")
+
+    def scaled(self, fx: float, fy: float | None = None) -> "Prompt":
+        """The prompt on the image scaled by ``fx`` across and ``fy`` (default ``fx``) down, pixel centres kept
+        (``(x + 0.5) f - 0.5``)."""
+        fy = fx if fy is None else fy
+
+        def move(x: float, y: float) -> tuple[float, float]:
+            return (x + 0.5) * fx - 0.5, (y + 0.5) * fy - 0.5
+
+        box = None if self.box is None else (*move(*self.box[:2]), *move(*self.box[2:]))
+        return Prompt(tuple(move(x, y) for x, y in self.points), box, tuple(move(x, y) for x, y in self.exclude))
+
+
+def _xy(x: float, y: float) -> str:
+    return f"{x:g},{y:g}"
+
+
+def _discs(shape: tuple[int, int], points, radius: int) -> np.ndarray:
+    """(H, W) bool: discs of ``radius`` pixels about (x, y) ``points``."""
+    out = np.zeros(shape, np.uint8)
+    for x, y in points:
+        cv2.circle(out, (int(round(x)), int(round(y))), radius, 1, -1)
+    return out.astype(bool)
+
+
+def _components_touching(mask: np.ndarray, near: np.ndarray, unless: np.ndarray | None = None) -> np.ndarray:
+    """(H, W) bool: the 8-connected components of ``mask`` that overlap ``near``, except those overlapping
+    ``unless``."""
+    n, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
+    keep = np.zeros(n, bool)
+    keep[labels[near]] = True
+    if unless is not None:
+        keep[labels[unless]] = False
+    keep[0] = False
+    return keep[labels]
+
+
+def _box_pixels(box, width: int, height: int, margin: float = 0.0) -> tuple[int, int, int, int]:
+    """Integer (x0, y0, x1, y1) (exclusive ends) of ``box`` grown by ``margin`` of its size, clipped."""
+    x0, y0, x1, y1 = box
+    mx, my = margin * (x1 - x0), margin * (y1 - y0)
+    return (max(0, int(np.floor(x0 - mx))), max(0, int(np.floor(y0 - my))),
+            min(width, int(np.ceil(x1 + mx)) + 1), min(height, int(np.ceil(y1 + my)) + 1))
+
+
+def _saliency(image: np.ndarray, prompt: Prompt, model: SalientModel) -> np.ndarray:
+    """(H, W) float32 object probability: the model on the box's neighbourhood (zero elsewhere), or on the image."""
+    h, w = image.shape[:2]
+    if prompt.box is None:
+        return model.predict(image, normalize=False)
+    x0, y0, x1, y1 = _box_pixels(prompt.box, w, h, _BOX_MARGIN)
+    prob = np.zeros((h, w), np.float32)
+    if x1 - x0 >= 8 and y1 - y0 >= 8:
+        prob[y0:y1, x0:x1] = model.predict(np.ascontiguousarray(image[y0:y1, x0:x1]), normalize=False)
+    return prob
+
+
+def prompted_mask(image: np.ndarray, prompt: Prompt, *, model: SalientModel | None = None,
+                  iterations: int = 5) -> np.ndarray:
+    """(H, W, 3) uint8 RGB image and a prompt in its pixels → (H, W) bool mask of the object prompted.
+
+    Raises :class:`InputError` on a bad prompt (see :meth:`Prompt.check`) or when it selects nothing.
+    """
+    check_image(image)
+    h, w = image.shape[:2]
+    prompt.check(w, h)
+    if not prompt:
+        raise InputError("a prompt needs a point or a box on the object")
+    diagonal = float(np.hypot(w, h))
+    radius = max(1, round(_POINT_RADIUS * diagonal))
+    salient = _saliency(image, prompt, model or default_model()) >= 0.5
+    touch = max(radius, round(_TOUCH * diagonal))
+    # A salient thing next to an excluded point and no point is background as a whole.
+    near_points = _discs((h, w), prompt.points, touch)
+    rejected = _components_touching(salient, _discs((h, w), prompt.exclude, touch), near_points)
+    if prompt.points:  # keep the salient components a point is on (or next to)
+        salient = _components_touching(salient, near_points)
+    salient &= ~rejected
+    inside = np.ones((h, w), bool)
+    if prompt.box is not None:
+        x0, y0, x1, y1 = _box_pixels(prompt.box, w, h)
+        inside[:] = False
+        inside[y0:y1, x0:x1] = True
+    labels = np.full((h, w), cv2.GC_PR_BGD, np.uint8)
+    labels[salient & inside] = cv2.GC_PR_FGD
+    labels[_discs((h, w), prompt.points, max(radius, round(_SEED_RADIUS * diagonal))) & inside] = cv2.GC_PR_FGD
+    labels[~inside] = cv2.GC_BGD
+    labels[_discs((h, w), prompt.points, radius)] = cv2.GC_FGD
+    excluded = _discs((h, w), prompt.exclude, radius)
+    labels[excluded | rejected] = cv2.GC_BGD
+    if prompt.box is not None and not (labels == cv2.GC_PR_FGD).any() and not prompt.points:
+        labels[inside & ~excluded] = cv2.GC_PR_FGD  # nothing salient in the box: the box itself starts GrabCut
+    if (labels == cv2.GC_BGD).all() or not np.isin(labels, (cv2.GC_BGD, cv2.GC_PR_BGD)).any():
+        raise InputError("the prompt leaves GrabCut no object or no background to compare it with")
+    mask = _grabcut(image, labels, iterations) & ~excluded
+    if prompt.points:  # the components holding a point
+        mask = _components_touching(mask, _discs((h, w), prompt.points, radius))
+    if not mask.any():
+        raise InputError("the prompt selects nothing: no object found at the points or in the box given")
+    return keep_main_object(mask, keep_fraction=0.0 if prompt.points else 0.2)
+
+
+def _grabcut(image: np.ndarray, labels: np.ndarray, iterations: int) -> np.ndarray:
+    """GrabCut from a label map (H, W) uint8, on the neighbourhood of what is not sure background."""
+    h, w = labels.shape
+    ys, xs = np.nonzero(labels != cv2.GC_BGD)
+    pad = max(8, round(0.1 * max(np.ptp(ys), np.ptp(xs))))
+    y0, y1 = max(ys.min() - pad, 0), min(ys.max() + pad + 1, h)
+    x0, x1 = max(xs.min() - pad, 0), min(xs.max() + pad + 1, w)
+    crop = np.ascontiguousarray(labels[y0:y1, x0:x1])
+    bgd, fgd = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
+    bgr = cv2.cvtColor(np.ascontiguousarray(image[y0:y1, x0:x1]), cv2.COLOR_RGB2BGR)
+    cv2.setRNGSeed(0)  # GrabCut seeds its colour models from OpenCV's global RNG: make it repeatable
+    try:
+        cv2.grabCut(bgr, crop, None, bgd, fgd, iterations, cv2.GC_INIT_WITH_MASK)
+    except cv2.error:  # one of the two colour models has too few pixels to fit
+        raise InputError("the prompt selects nothing GrabCut can separate from its surroundings") from None
+    out = np.zeros((h, w), bool)
+    out[y0:y1, x0:x1] = (crop == cv2.GC_FGD) | (crop == cv2.GC_PR_FGD)
+    return out
