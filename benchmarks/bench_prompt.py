@@ -3,7 +3,7 @@
 For each DAVIS clip in ``../shared/data/videos``, frame 0's prompt is taken from its ground-truth mask as
 a user would give it: one click at the point deepest inside the object (farthest from its outline), or
 the object's bounding box. The prompted masks (:func:`~marionette.source.prompted.prompted_masks`) are
-compared with the DAVIS masks on every frame (IoU: mean, minimum, and on the last frame), next to the
+compared with the DAVIS masks on every frame (IoU: on frame 0, mean, minimum, and on the last frame), next to the
 automatic masks (:func:`~marionette.source.foreground.auto_masks`), and timed. A contact sheet per clip
 (``--sheets``): the click and the prompted mask (green) against the DAVIS outline (red).
 Writes ``docs/benchmarks/prompt.md``.
@@ -88,7 +88,7 @@ def main() -> None:
             seconds = time.perf_counter() - start
             scores = iou(masks, truth)
             results[label] = scores
-            rows.append((clip, label, scores.mean(), scores.min(), scores[-1], seconds, t_count))
+            rows.append((clip, label, scores[0], scores.mean(), scores.min(), scores[-1], seconds, t_count))
             print(rows[-1], flush=True)
             if label == "one click":
                 sheet(frames, masks, truth, point, args.sheets / f"prompt_{clip.split('_', 1)[-1]}.png")
@@ -98,10 +98,11 @@ def main() -> None:
              "inside the object, or the object's bounding box. Prompted masks follow the object through the clip "
              "(flow, then GrabCut on each frame); IoU against the DAVIS masks on every frame, next to the "
              "automatic masks (saliency and motion, no prompt).", "",
-             "| clip | masks | mean IoU | min IoU | last frame IoU | seconds | frames |",
-             "|---|---|---:|---:|---:|---:|---:|"]
-    for clip, label, mean, low, last, seconds, count in rows:
-        lines.append(f"| {clip} | {label} | {mean:.3f} | {low:.3f} | {last:.3f} | {seconds:.1f} | {count} |")
+             "| clip | masks | frame 0 IoU | mean IoU | min IoU | last frame IoU | seconds | frames |",
+             "|---|---|---:|---:|---:|---:|---:|---:|"]
+    for clip, label, first, mean, low, last, seconds, count in rows:
+        lines.append(f"| {clip} | {label} | {first:.3f} | {mean:.3f} | {low:.3f} | {last:.3f} | {seconds:.1f} | "
+                     f"{count} |")
     lines += ["", "Contact sheets (the click as a cross on frame 0; prompted mask green, DAVIS outline red): "
               + ", ".join(f"[{c.split('_', 1)[-1]}](../images/prompt_{c.split('_', 1)[-1]}.png)" for c in CLIPS)
               + "."]

@@ -730,6 +730,30 @@ def view(result: Annotated[Path, typer.Argument(
         run_viewer(result, host, port, fps=fps, announce=announce, verbose=verbose)
 
 
+@app.command("app")
+def app_cmd(host: Annotated[str, typer.Option(
+                help="Address to listen on; 0.0.0.0 lets other machines connect.")] = "127.0.0.1",
+            port: Annotated[int, typer.Option(help="Port (0: any free port).")] = 8765,
+            workdir: Annotated[Optional[Path], typer.Option(
+                help="Folder for uploads and results, one subfolder per browser session (default: a new "
+                     "temporary folder).")] = None,
+            quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False, config: Config = None) -> None:
+    """A local web page: upload a clip and a photo, click the objects, get the video (until Ctrl-C)."""
+    from .app import run_app
+
+    if workdir is not None and workdir.exists() and not workdir.is_dir():
+        raise InputError(f"--workdir {workdir} is a file, not a folder")
+    with _session("app", quiet, verbose, json_summary) as session:
+        def announce(server) -> None:
+            session.figures.update(url=server.url, workdir=str(server.sessions.root))
+            if json_summary:
+                print(json.dumps(session.summary(), indent=2, default=float), flush=True)
+            else:
+                session.reporter.message(f"app at {server.url} (Ctrl-C to stop)")
+
+        run_app(host, port, workdir, announce=announce)
+
+
 @app.command("render")
 def render_cmd(scene: Annotated[Path, typer.Argument(help="3DGS .ply file.")],
                camera: Annotated[Path, typer.Option(help="CAMERA.json (docs/DESIGN.md contract).")],

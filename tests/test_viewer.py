@@ -1,10 +1,7 @@
 """Animated-splat export and the web viewer, end to end in headless Chromium."""
 
-import base64
-import contextlib
 import json
 import subprocess
-import tempfile
 import time
 import urllib.request
 from pathlib import Path
@@ -12,7 +9,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-import websockets.sync.client
+from browser import CHROMIUM, browser
 
 from marionette.errors import InputError
 from marionette.gaussians import Gaussians, rgb_to_sh
@@ -22,7 +19,6 @@ from marionette.io.splat_anim import SplatAnimation, read_ply_frames, read_splat
 from marionette.trajectory import Trajectory
 from marionette.viewer import _animation_frames, covariances, serve
 
-CHROMIUM = Path("/usr/bin/chromium")
 MAGENTA = (1.0, 0.0, 1.0)
 
 
@@ -232,49 +228,6 @@ def test_serve_rejects_bad_options():
         serve(anim, port=0, fps=-1)
 
 
-@contextlib.contextmanager
-def _browser(url: str):
-    """Headless Chromium (software WebGL) showing ``url`` at 800x600; yields
-    ``wait(predicate)``, which takes screenshots through the DevTools protocol
-    until ``predicate(image)`` holds and returns that RGB image (the last one
-    after 60 s). Polling, rather than ``--screenshot``, because Chromium's
-    virtual time does not wait for websocket messages: on a busy machine a
-    one-shot screenshot is often taken before the scene has arrived."""
-    # Chromium's helper processes may still write to the profile after the browser exits.
-    with tempfile.TemporaryDirectory(ignore_cleanup_errors=True) as profile:
-        browser = subprocess.Popen(
-            [str(CHROMIUM), "--headless", "--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader",
-             "--disable-quic", "--no-first-run", "--disable-background-networking",
-             "--disable-component-update", "--disable-sync", f"--user-data-dir={profile}",
-             "--window-size=800,600", "--remote-debugging-port=0", url],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-        )
-        try:
-            port_file, deadline = Path(profile) / "DevToolsActivePort", time.monotonic() + 60
-            while len(lines := (port_file.read_text().split() if port_file.exists() else [])) < 2:
-                assert time.monotonic() < deadline and browser.poll() is None, "Chromium did not start"
-                time.sleep(0.1)
-            with urllib.request.urlopen(f"http://127.0.0.1:{lines[0]}/json/list", timeout=10) as r:
-                page = next(t for t in json.load(r) if t["type"] == "page")
-            with websockets.sync.client.connect(page["webSocketDebuggerUrl"], max_size=None) as devtools:
-
-                def wait(predicate) -> np.ndarray:
-                    deadline = time.monotonic() + 60
-                    while True:
-                        devtools.send(json.dumps({"id": 1, "method": "Page.captureScreenshot"}))
-                        while "result" not in (reply := json.loads(devtools.recv())):
-                            pass  # events
-                        png = np.frombuffer(base64.b64decode(reply["result"]["data"]), np.uint8)
-                        image = cv2.cvtColor(cv2.imdecode(png, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
-                        if predicate(image) or time.monotonic() > deadline:
-                            return image
-                        time.sleep(0.25)
-                yield wait
-        finally:
-            browser.terminate()
-            browser.wait(timeout=30)
-
-
 def _magenta(image: np.ndarray) -> np.ndarray:
     """(H, W) bool: pixels of the object's hue, faded or not (nothing in viser's page is magenta)."""
     r, g, b = (image[..., i].astype(int) for i in range(3))
@@ -292,7 +245,7 @@ def test_chromium_draws_the_object_and_follows_the_time(tmp_path):
     anim = _animation(n=3000, t_count=6, shift=0.6)
     viewer = serve(anim, port=0, autoplay=False)
     try:
-        with _browser(viewer.url) as wait:
+        with browser(viewer.url) as (wait, _):
             # The ball (radius ~0.7 seen from 1.6 units, vertical fov 75°) covers ~20 % of the view.
             first = wait(lambda image: _magenta(image).mean() > 0.1)
             x0 = _column(first)

@@ -2,12 +2,18 @@
 
 The prompt (points, a box, excluded points; :class:`~marionette.segment.prompt.Prompt`)
 gives frame 0's mask (:func:`~marionette.segment.prompt.prompted_mask`). Each
-next frame takes the previous mask carried along the dense optical flow
-(DIS, as :mod:`.foreground` computes it), its boundary snapped to the
-frame's colour edges by GrabCut (the carried mask, blurred, is GrabCut's
-soft prior: it may move the boundary a few pixels, not jump to another
-object); when GrabCut strays from the carried mask (IoU below
-``_AGREE``) the carried mask is kept. Work is at the working size of
+next frame starts from the previous mask carried along the dense optical
+flow (DIS, as :mod:`.foreground` computes it). Carried masks drift (an
+object that turns or comes closer outgrows them), so each frame is
+re-anchored on the automatic masks (:func:`~.foreground.auto_masks`:
+saliency and motion, sharp boundaries), restricted to the prompted object:
+their components that lie mostly inside the carried mask (``_INSIDE``) are
+the object when they agree with it (IoU ``_AGREE``). Where they do not (the
+automatic choice took something else, or nothing), the carried mask's
+boundary is snapped to the frame's colour edges by GrabCut (the carried
+mask, blurred, is its soft prior: it may move the boundary a few pixels,
+not jump to another object), and kept as carried if GrabCut strays too.
+Work is at the working size of
 :class:`~marionette.source.foreground.ForegroundOptions`.
 """
 
@@ -22,17 +28,29 @@ from ..errors import InputError
 from ..io.video import PackedMasks, VideoFrames, check_frames
 from ..segment import SalientModel
 from ..segment.prompt import Prompt, prompted_mask
-from .foreground import ForegroundOptions, _Flows, _snap_to_edges, _warp
+from .foreground import ForegroundOptions, _Flows, _snap_to_edges, _warp, auto_masks
 
 __all__ = ["prompted_masks"]
 
-#: A frame's GrabCut-snapped mask is kept when its IoU with the carried mask reaches this.
-_AGREE = 0.7
+#: An automatic or GrabCut-snapped mask replaces the carried one when their IoU reaches this.
+_AGREE = 0.6
+#: An automatic mask's component belongs to the prompted object when this share of it lies in the carried mask.
+_INSIDE = 0.5
 
 
 def _iou(a: np.ndarray, b: np.ndarray) -> float:
     union = np.logical_or(a, b).sum()
     return float(np.logical_and(a, b).sum() / union) if union else 1.0
+
+
+def _restricted(automatic: np.ndarray, carried: np.ndarray) -> np.ndarray:
+    """(h, w) bool: the components of ``automatic`` that lie mostly (``_INSIDE``) in ``carried``."""
+    n, labels = cv2.connectedComponents(automatic.astype(np.uint8), connectivity=8)
+    size = np.bincount(labels.ravel(), minlength=n)
+    inside = np.bincount(labels.ravel(), weights=carried.ravel(), minlength=n)
+    keep = inside >= _INSIDE * np.maximum(size, 1)
+    keep[0] = False
+    return keep[labels]
 
 
 def prompted_masks(frames: np.ndarray | VideoFrames, prompt: Prompt, *, options: ForegroundOptions | None = None,
@@ -52,12 +70,23 @@ def prompted_masks(frames: np.ndarray | VideoFrames, prompt: Prompt, *, options:
     def small(t: int) -> np.ndarray:
         return cv2.resize(frames[t], (w, h), interpolation=cv2.INTER_AREA) if (w, h) != (W, H) else frames[t]
 
+    first = prompted_mask(small(0), prompt.scaled(w / W), model=model)  # a bad prompt fails before the long work
+    total = 5 * T - 2  # auto_masks reports 4 T - 2 steps, then one per frame here
+
+    def report(done: int, _: int) -> None:
+        if progress is not None:
+            progress(done, total)
+
+    try:
+        automatic = auto_masks(frames, options=options, model=model, packed=True, progress=report)
+    except InputError:  # nothing salient or moving anywhere: the carried masks alone
+        automatic = None
     colour = [small(t) for t in range(T)]
     grey = np.stack([cv2.cvtColor(c, cv2.COLOR_RGB2GRAY) for c in colour])
     bwd = _Flows(grey, forward=False, keep=2)  # flow t+1 → t, in frame t+1's grid
     reach = max(1, round(options.reach * max(w, h)))
     masks = PackedMasks(T, h, w)
-    masks[0] = prompted_mask(colour[0], prompt.scaled(w / W), model=model)
+    masks[0] = first if automatic is None else _follow(first, colour[0], automatic[0], (w, h), reach, snap=False)
     out = PackedMasks(T, H, W) if packed else np.empty((T, H, W), bool)
     for t in range(T):
         if t:
@@ -65,9 +94,22 @@ def prompted_masks(frames: np.ndarray | VideoFrames, prompt: Prompt, *, options:
             if not carried.any():
                 raise InputError(f"the prompted object is lost at frame {t} (it left the picture?); "
                                  "pass --masks DIR")
-            snapped = _snap_to_edges(colour[t], carried, reach)
-            masks[t] = snapped if _iou(snapped, carried) >= _AGREE else carried
+            masks[t] = _follow(carried, colour[t], None if automatic is None else automatic[t], (w, h), reach)
         out[t] = cv2.resize(masks[t].astype(np.float32), (W, H), interpolation=cv2.INTER_LINEAR) >= 0.5
-        if progress is not None:
-            progress(t + 1, T)
+        report(4 * T - 2 + t + 1, total)
     return out
+
+
+def _follow(carried: np.ndarray, image: np.ndarray, automatic: np.ndarray | None, size: tuple[int, int],
+            reach: int, snap: bool = True) -> np.ndarray:
+    """A frame's mask from the previous one carried into it (h, w) bool, the frame (h, w, 3) at working size
+    and its automatic mask (full size, or None); without ``snap``, no GrabCut (frame 0's mask is GrabCut's)."""
+    if automatic is not None:
+        found = _restricted(cv2.resize(automatic.astype(np.float32), size, interpolation=cv2.INTER_AREA) >= 0.5,
+                            carried)
+        if _iou(found, carried) >= _AGREE:
+            return found
+    if not snap:
+        return carried
+    snapped = _snap_to_edges(image, carried, reach)
+    return snapped if _iou(snapped, carried) >= _AGREE else carried

@@ -1,0 +1,175 @@
+"""The local web app: its API end to end, two sessions at once, bad uploads, and the page in headless Chromium."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+import urllib.error
+import urllib.request
+
+import cv2
+import numpy as np
+import pytest
+from browser import CHROMIUM, browser
+
+from marionette.app import serve_app
+from marionette.io import read_video, write_video
+from marionette.synthetic import make_scene
+
+FRAMES = 8
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory):
+    """A small synthetic clip (.mp4) and a photo of a red disc and a blue square on grey (.png)."""
+    folder = tmp_path_factory.mktemp("inputs")
+    scene = make_scene("inplane", num_frames=FRAMES, size=(96, 80), seed=1)
+    clip = folder / "clip.mp4"
+    write_video(clip, scene.frames, scene.fps)
+    photo = np.full((90, 120, 3), 128, np.uint8)
+    cv2.circle(photo, (35, 45), 20, (30, 40, 210), -1)  # BGR: red
+    cv2.rectangle(photo, (70, 25), (108, 65), (200, 60, 30), -1)  # blue
+    image = folder / "photo.png"
+    cv2.imwrite(str(image), photo)
+    return clip, image
+
+
+@pytest.fixture
+def app(tmp_path):
+    server = serve_app(port=0, workdir=tmp_path / "work")
+    yield server
+    server.stop()
+
+
+def call(app, path, body=None, method="POST"):
+    """(status, JSON reply) of an API call."""
+    data = body if isinstance(body, bytes) or body is None else json.dumps(body).encode()
+    request = urllib.request.Request(app.url + path, data=data, method=method)
+    try:
+        with urllib.request.urlopen(request, timeout=60) as reply:
+            return reply.status, json.loads(reply.read())
+    except urllib.error.HTTPError as e:
+        return e.code, json.loads(e.read())
+
+
+def finished(app, session, timeout=300):
+    deadline = time.monotonic() + timeout
+    while True:
+        status, state = call(app, f"/api/status?session={session}", method="GET")
+        assert status == 200
+        if state["state"] in ("done", "error") or time.monotonic() > deadline:
+            return state
+        time.sleep(0.2)
+
+
+def test_two_sessions_at_once_each_get_their_own_video(app, inputs):
+    clip, image = inputs
+    sessions = [call(app, "/api/session")[1]["session"] for _ in range(2)]
+    assert sessions[0] != sessions[1]
+    for session, speed in zip(sessions, (1.0, 0.5)):
+        status, info = call(app, f"/api/upload?session={session}&kind=source&name=clip.mp4", clip.read_bytes())
+        assert status == 200 and info["frames"] == FRAMES and (info["width"], info["height"]) == (96, 80)
+        status, info = call(app, f"/api/upload?session={session}&kind=target&name=photo.png", image.read_bytes())
+        assert status == 200 and (info["width"], info["height"]) == (120, 90)
+    # A click on the square: the preview shows it green.
+    status, reply = call(app, f"/api/mask?session={sessions[0]}&kind=target", {"points": [[89, 45]]})
+    assert status == 200
+    with urllib.request.urlopen(app.url + reply["preview"], timeout=10) as r:
+        preview = cv2.imdecode(np.frombuffer(r.read(), np.uint8), cv2.IMREAD_COLOR)
+    assert preview[45, 89, 1] > preview[45, 35, 1] + 40
+    runs = [threading.Thread(target=call, args=(app, f"/api/run?session={s}",
+                                                {"speed": speed, "target": {"points": [[89, 45]]}}))
+            for s, speed in zip(sessions, (1.0, 0.5))]
+    for run in runs:
+        run.start()
+    for run in runs:
+        run.join()
+    counts = []
+    for session in sessions:
+        state = finished(app, session)
+        assert state["state"] == "done", state
+        with urllib.request.urlopen(f"{app.url}/api/file?session={session}&name=result.mp4", timeout=10) as r:
+            path = app.sessions.get(session).folder / "check.mp4"
+            path.write_bytes(r.read())
+        counts.append(read_video(path).frames.shape[0])
+    assert counts == [FRAMES, 2 * FRAMES - 1]  # each session's own speed: nothing shared
+
+
+@pytest.mark.parametrize("name, data, message", [
+    ("notes.txt", b"hello", "is not a video or an image"),
+    ("clip.mp4", b"not a video at all", "cannot be read"),
+    ("clip.mp4", b"", "is empty"),
+])
+def test_a_bad_upload_gets_a_message_and_the_server_keeps_serving(app, name, data, message):
+    session = call(app, "/api/session")[1]["session"]
+    status, reply = call(app, f"/api/upload?session={session}&kind=source&name={name}", data)
+    assert status == 400 and message in reply["error"]
+    assert not list(app.sessions.get(session).folder.glob("source.*"))
+    assert call(app, "/api/session")[0] == 200  # still serving
+    status, reply = call(app, f"/api/run?session={session}", {})
+    assert status == 400 and "upload a source clip and a photo first" in reply["error"]
+    assert call(app, "/api/status?session=nope", method="GET")[0] == 400
+    assert call(app, f"/api/file?session={session}&name=../../etc/passwd", method="GET")[0] == 400
+
+
+def test_the_app_command_prints_its_address_and_ctrl_c_exits_130(tmp_path):
+    proc = subprocess.Popen([sys.executable, "-m", "marionette", "app", "--port", "0", "--json", "--workdir",
+                             str(tmp_path / "work")], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    try:
+        lines = []
+        while lines[-1:] != ["}\n"]:
+            lines.append(proc.stdout.readline())
+            assert lines[-1], proc.stderr.read()
+        summary = json.loads("".join(lines))
+        with urllib.request.urlopen(summary["figures"]["url"], timeout=10) as page:
+            assert page.status == 200 and b"motion-marionette" in page.read()
+    finally:
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+
+
+@pytest.mark.skipif(not CHROMIUM.exists(), reason="needs Debian's chromium (apt-get install -y chromium)")
+def test_chromium_upload_click_run_and_play(app, inputs):
+    clip, image = inputs
+
+    with browser(app.url) as (wait, call_devtools):
+        def evaluate(expression):
+            reply = call_devtools("Runtime.evaluate", expression=expression, awaitPromise=True, returnByValue=True)
+            return reply["result"].get("value")
+
+        def until(expression, timeout=240):
+            deadline = time.monotonic() + timeout
+            while not evaluate(expression):
+                assert time.monotonic() < deadline, f"timed out waiting for {expression}"
+                time.sleep(0.25)
+
+        until("typeof session === 'string'")
+        root = call_devtools("DOM.getDocument")["root"]["nodeId"]
+        for kind, path in (("source", clip), ("target", image)):
+            node = call_devtools("DOM.querySelector", nodeId=root, selector=f"#{kind}-file")["nodeId"]
+            call_devtools("DOM.setFileInputFiles", nodeId=node, files=[str(path)])
+            until(f"document.getElementById('{kind}-image').naturalWidth > 0")
+        # Click the blue square in the photo as a user does: the mouse at its place on the page.
+        box = evaluate("(() => { const r = document.getElementById('target-image').getBoundingClientRect();"
+                       " return [r.left, r.top, r.width, r.height]; })()")
+        x, y = box[0] + (89 + 0.5) / 120 * box[2], box[1] + (45 + 0.5) / 90 * box[3]
+        for kind in ("mousePressed", "mouseReleased"):
+            call_devtools("Input.dispatchMouseEvent", type=kind, x=x, y=y, button="left", clickCount=1)
+        until("prompts.target.points.length === 1 && document.getElementById('target-image').src.includes('mask')")
+        evaluate("document.getElementById('speed').value = '0.5'; document.getElementById('run').click()")
+        until("!document.getElementById('video').hidden && document.getElementById('video').readyState >= 1")
+        duration = evaluate("document.getElementById('video').duration")
+        url = evaluate("document.getElementById('video').src")
+        wait(lambda image: True)
+    with urllib.request.urlopen(url, timeout=10) as r:
+        data = r.read()
+    path = app.sessions.root / "played.mp4"
+    path.write_bytes(data)
+    played = read_video(path)
+    assert played.frames.shape[0] == 2 * FRAMES - 1  # half speed
+    assert duration == pytest.approx(played.frames.shape[0] / played.fps, rel=0.2)
