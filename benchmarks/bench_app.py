@@ -60,34 +60,21 @@ def one_run(app, clip: Path, photo: Path) -> tuple[float, dict]:
 def screenshot(app, clip: Path, photo: Path) -> Path | None:
     """The page after a run in headless Chromium, saved to docs/images/app.png."""
     sys.path.insert(0, str(ROOT / "tests"))
-    from browser import CHROMIUM, browser
+    from browser import CHROMIUM, Page, browser
 
     if not CHROMIUM.exists():
         return None
     with browser(app.url) as (wait, call):
-        def evaluate(expression):
-            return call("Runtime.evaluate", expression=expression, awaitPromise=True, returnByValue=True)["result"].get(
-                "value")
-
-        def until(expression):
-            deadline = time.monotonic() + 600
-            while not evaluate(expression) and time.monotonic() < deadline:
-                time.sleep(0.25)
-
-        until("typeof session === 'string'")
-        root = call("DOM.getDocument")["root"]["nodeId"]
+        page = Page(call)
+        page.until("typeof session === 'string'")
         for kind, path in (("source", clip), ("target", photo)):
-            node = call("DOM.querySelector", nodeId=root, selector=f"#{kind}-file")["nodeId"]
-            call("DOM.setFileInputFiles", nodeId=node, files=[str(path)])
-            until(f"document.getElementById('{kind}-image').naturalWidth > 0")
-        rect = evaluate("(() => { const r = document.getElementById('target-image').getBoundingClientRect();"
-                        " return [r.left, r.top, r.width, r.height]; })()")
-        for kind in ("mousePressed", "mouseReleased"):
-            call("Input.dispatchMouseEvent", type=kind, x=rect[0] + rect[2] / 2, y=rect[1] + rect[3] / 2,
-                 button="left", clickCount=1)
-        until("document.getElementById('target-image').src.includes('mask')")
-        evaluate("document.getElementById('run').click()")
-        until("!document.getElementById('video').hidden && document.getElementById('video').readyState >= 2")
+            page.upload(f"{kind}-file", path)
+            page.until(f"document.getElementById('{kind}-image').naturalWidth > 0")
+        page.click_image("target-image", 256, 256)
+        page.until("document.getElementById('target-image').src.includes('mask')")
+        page.evaluate("document.getElementById('run').click()")
+        page.until("!document.getElementById('video').hidden && document.getElementById('video').readyState >= 2",
+                   timeout=600)
         call("Emulation.setDeviceMetricsOverride", width=1100, height=1250, deviceScaleFactor=1, mobile=False)
         time.sleep(1.0)
         image = wait(lambda image: True)

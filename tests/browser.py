@@ -69,3 +69,37 @@ def browser(url: str):
             process.wait(timeout=30)
 
 
+
+
+class Page:
+    """The page of a :func:`browser`, driven as a user drives it (``call`` is the DevTools callable)."""
+
+    def __init__(self, call) -> None:
+        self.call = call
+
+    def evaluate(self, expression: str):
+        """The value of a JavaScript expression (promises awaited)."""
+        reply = self.call("Runtime.evaluate", expression=expression, awaitPromise=True, returnByValue=True)
+        return reply["result"].get("value")
+
+    def until(self, expression: str, timeout: float = 240) -> None:
+        """Wait until the expression is truthy (AssertionError after ``timeout`` seconds)."""
+        deadline = time.monotonic() + timeout
+        while not self.evaluate(expression):
+            assert time.monotonic() < deadline, f"timed out waiting for {expression}"
+            time.sleep(0.25)
+
+    def upload(self, input_id: str, path: Path) -> None:
+        """Pick ``path`` in the file input ``#input_id``."""
+        root = self.call("DOM.getDocument")["root"]["nodeId"]
+        node = self.call("DOM.querySelector", nodeId=root, selector=f"#{input_id}")["nodeId"]
+        self.call("DOM.setFileInputFiles", nodeId=node, files=[str(path)])
+
+    def click_image(self, image_id: str, x: float, y: float) -> None:
+        """A mouse click on pixel (x, y) of the image ``#image_id`` (its own pixels, wherever it is shown)."""
+        left, top, width, height = self.evaluate(
+            f"(() => {{ const i = document.getElementById('{image_id}'); const r = i.getBoundingClientRect();"
+            " return [r.left, r.top, r.width / i.naturalWidth, r.height / i.naturalHeight]; })()")
+        for kind in ("mousePressed", "mouseReleased"):
+            self.call("Input.dispatchMouseEvent", type=kind, x=left + (x + 0.5) * width, y=top + (y + 0.5) * height,
+                      button="left", clickCount=1)

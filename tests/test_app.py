@@ -13,7 +13,7 @@ import urllib.request
 import cv2
 import numpy as np
 import pytest
-from browser import CHROMIUM, browser
+from browser import CHROMIUM, Page, browser
 
 from marionette.app import serve_app
 from marionette.io import read_video, write_video
@@ -138,33 +138,17 @@ def test_chromium_upload_click_run_and_play(app, inputs):
     clip, image = inputs
 
     with browser(app.url) as (wait, call_devtools):
-        def evaluate(expression):
-            reply = call_devtools("Runtime.evaluate", expression=expression, awaitPromise=True, returnByValue=True)
-            return reply["result"].get("value")
-
-        def until(expression, timeout=240):
-            deadline = time.monotonic() + timeout
-            while not evaluate(expression):
-                assert time.monotonic() < deadline, f"timed out waiting for {expression}"
-                time.sleep(0.25)
-
-        until("typeof session === 'string'")
-        root = call_devtools("DOM.getDocument")["root"]["nodeId"]
+        page = Page(call_devtools)
+        page.until("typeof session === 'string'")
         for kind, path in (("source", clip), ("target", image)):
-            node = call_devtools("DOM.querySelector", nodeId=root, selector=f"#{kind}-file")["nodeId"]
-            call_devtools("DOM.setFileInputFiles", nodeId=node, files=[str(path)])
-            until(f"document.getElementById('{kind}-image').naturalWidth > 0")
-        # Click the blue square in the photo as a user does: the mouse at its place on the page.
-        box = evaluate("(() => { const r = document.getElementById('target-image').getBoundingClientRect();"
-                       " return [r.left, r.top, r.width, r.height]; })()")
-        x, y = box[0] + (89 + 0.5) / 120 * box[2], box[1] + (45 + 0.5) / 90 * box[3]
-        for kind in ("mousePressed", "mouseReleased"):
-            call_devtools("Input.dispatchMouseEvent", type=kind, x=x, y=y, button="left", clickCount=1)
-        until("prompts.target.points.length === 1 && document.getElementById('target-image').src.includes('mask')")
-        evaluate("document.getElementById('speed').value = '0.5'; document.getElementById('run').click()")
-        until("!document.getElementById('video').hidden && document.getElementById('video').readyState >= 1")
-        duration = evaluate("document.getElementById('video').duration")
-        url = evaluate("document.getElementById('video').src")
+            page.upload(f"{kind}-file", path)
+            page.until(f"document.getElementById('{kind}-image').naturalWidth > 0")
+        page.click_image("target-image", 89, 45)  # the blue square, as a user clicks it
+        page.until("prompts.target.points.length === 1 && document.getElementById('target-image').src.includes('mask')")
+        page.evaluate("document.getElementById('speed').value = '0.5'; document.getElementById('run').click()")
+        page.until("!document.getElementById('video').hidden && document.getElementById('video').readyState >= 1")
+        duration = page.evaluate("document.getElementById('video').duration")
+        url = page.evaluate("document.getElementById('video').src")
         wait(lambda image: True)
     with urllib.request.urlopen(url, timeout=10) as r:
         data = r.read()

@@ -17,7 +17,7 @@ from scipy import ndimage
 
 from ..errors import InputError
 
-__all__ = ["check_image", "keep_main_object", "grabcut_mask", "refine_with_grabcut"]
+__all__ = ["check_image", "keep_main_object", "grabcut_mask", "grabcut_labels", "refine_with_grabcut"]
 
 
 def check_image(image: np.ndarray) -> None:
@@ -131,22 +131,36 @@ def grabcut_mask(image: np.ndarray, *, rect: tuple[int, int, int, int] | None = 
         raise InputError("no object found in the image: the prior has no pixel >= 0.5")
     if fg_like.all():
         raise InputError("the prior marks the whole image as object; GrabCut needs some background")
-    # Work on the object's neighbourhood only: far background adds time, not information.
+    out = grabcut_labels(image, labels, iterations)
+    if not out.any():
+        raise InputError("no object found in the image: GrabCut left no foreground")
+    return out
+
+
+def grabcut_labels(image: np.ndarray, labels: np.ndarray, iterations: int = 5) -> np.ndarray:
+    """GrabCut from a label map (H, W) uint8 of ``cv2.GC_*`` values → (H, W) bool foreground.
+
+    Works on the neighbourhood of what is not sure background only: far
+    background adds time, not information. Raises InputError when GrabCut
+    cannot fit its colour models (one side has too few pixels).
+    """
+    h, w = labels.shape
     ys, xs = np.nonzero(labels != cv2.GC_BGD)
     pad = max(8, round(0.1 * max(np.ptp(ys), np.ptp(xs))))
-    y0, y1 = max(ys.min() - pad, 0), min(ys.max() + pad + 1, H)
-    x0, x1 = max(xs.min() - pad, 0), min(xs.max() + pad + 1, W)
-    # The crop always holds background-like pixels (the rect's surroundings, or
+    y0, y1 = max(ys.min() - pad, 0), min(ys.max() + pad + 1, h)
+    x0, x1 = max(xs.min() - pad, 0), min(xs.max() + pad + 1, w)
+    # The crop always holds background-like pixels (a rect's surroundings, or
     # the prior's PR_BGD), which GrabCut needs to fit its background model.
     crop = np.ascontiguousarray(labels[y0:y1, x0:x1])
     bgd, fgd = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
     bgr = cv2.cvtColor(np.ascontiguousarray(image[y0:y1, x0:x1]), cv2.COLOR_RGB2BGR)
     cv2.setRNGSeed(0)  # GrabCut seeds its colour models (k-means++) from OpenCV's global RNG: make it repeatable
-    cv2.grabCut(bgr, crop, None, bgd, fgd, iterations, cv2.GC_INIT_WITH_MASK)
-    out = np.zeros((H, W), bool)
+    try:
+        cv2.grabCut(bgr, crop, None, bgd, fgd, iterations, cv2.GC_INIT_WITH_MASK)
+    except cv2.error:
+        raise InputError("GrabCut could not separate the object from its surroundings") from None
+    out = np.zeros((h, w), bool)
     out[y0:y1, x0:x1] = (crop == cv2.GC_FGD) | (crop == cv2.GC_PR_FGD)
-    if not out.any():
-        raise InputError("no object found in the image: GrabCut left no foreground")
     return out
 
 

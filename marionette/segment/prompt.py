@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 
 from ..errors import InputError
-from ._grabcut import check_image, keep_main_object
+from ._grabcut import check_image, grabcut_labels, keep_main_object
 from ._u2net import SalientModel, default_model
 
 __all__ = ["Prompt", "prompted_mask"]
@@ -167,29 +167,9 @@ def prompted_mask(image: np.ndarray, prompt: Prompt, *, model: SalientModel | No
         labels[inside & ~excluded] = cv2.GC_PR_FGD  # nothing salient in the box: the box itself starts GrabCut
     if (labels == cv2.GC_BGD).all() or not np.isin(labels, (cv2.GC_BGD, cv2.GC_PR_BGD)).any():
         raise InputError("the prompt leaves GrabCut no object or no background to compare it with")
-    mask = _grabcut(image, labels, iterations) & ~excluded
+    mask = grabcut_labels(image, labels, iterations) & ~excluded
     if prompt.points:  # the components holding a point
         mask = _components_touching(mask, _discs((h, w), prompt.points, radius))
     if not mask.any():
         raise InputError("the prompt selects nothing: no object found at the points or in the box given")
     return keep_main_object(mask, keep_fraction=0.0 if prompt.points else 0.2)
-
-
-def _grabcut(image: np.ndarray, labels: np.ndarray, iterations: int) -> np.ndarray:
-    """GrabCut from a label map (H, W) uint8, on the neighbourhood of what is not sure background."""
-    h, w = labels.shape
-    ys, xs = np.nonzero(labels != cv2.GC_BGD)
-    pad = max(8, round(0.1 * max(np.ptp(ys), np.ptp(xs))))
-    y0, y1 = max(ys.min() - pad, 0), min(ys.max() + pad + 1, h)
-    x0, x1 = max(xs.min() - pad, 0), min(xs.max() + pad + 1, w)
-    crop = np.ascontiguousarray(labels[y0:y1, x0:x1])
-    bgd, fgd = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
-    bgr = cv2.cvtColor(np.ascontiguousarray(image[y0:y1, x0:x1]), cv2.COLOR_RGB2BGR)
-    cv2.setRNGSeed(0)  # GrabCut seeds its colour models from OpenCV's global RNG: make it repeatable
-    try:
-        cv2.grabCut(bgr, crop, None, bgd, fgd, iterations, cv2.GC_INIT_WITH_MASK)
-    except cv2.error:  # one of the two colour models has too few pixels to fit
-        raise InputError("the prompt selects nothing GrabCut can separate from its surroundings") from None
-    out = np.zeros((h, w), bool)
-    out[y0:y1, x0:x1] = (crop == cv2.GC_FGD) | (crop == cv2.GC_PR_FGD)
-    return out
