@@ -27,6 +27,7 @@ import numpy as np
 from ..errors import InputError
 from ..io.video import PackedMasks, VideoFrames, check_frames
 from ..segment import SalientModel
+from ..segment._grabcut import keep_main_object
 from ..segment.prompt import Prompt, prompted_mask
 from .foreground import ForegroundOptions, _Flows, _snap_to_edges, _warp, auto_masks
 
@@ -36,6 +37,15 @@ __all__ = ["prompted_masks"]
 _AGREE = 0.6
 #: An automatic mask's component belongs to the prompted object when this share of it lies in the carried mask.
 _INSIDE = 0.5
+#: Frame 0's mask is cut to what moves with the clicks between frame 0 and this frame (see _moving_with) ...
+_LOOKAHEAD = 4
+#: ... when the mask's median flow reaches this (working pixels), a pixel agreeing within this share of it
+#: (or 1 px), and the part kept is between these shares of the mask.
+_MIN_FLOW = 1.5
+_AGREE_FLOW = 0.25
+_MIN_SHARE, _MAX_SHARE = 0.05, 0.9
+#: A frame's mask reaches at most this many ``reach`` beyond the previous one carried into it.
+_GROWTH = 3
 
 
 def _iou(a: np.ndarray, b: np.ndarray) -> float:
@@ -83,6 +93,7 @@ def prompted_masks(frames: np.ndarray | VideoFrames, prompt: Prompt, *, options:
         automatic = None
     colour = [small(t) for t in range(T)]
     grey = np.stack([cv2.cvtColor(c, cv2.COLOR_RGB2GRAY) for c in colour])
+    first = _moving_with(first, [p for p in prompt.scaled(w / W).points], grey)
     bwd = _Flows(grey, forward=False, keep=2)  # flow t+1 → t, in frame t+1's grid
     reach = max(1, round(options.reach * max(w, h)))
     masks = PackedMasks(T, h, w)
@@ -100,6 +111,50 @@ def prompted_masks(frames: np.ndarray | VideoFrames, prompt: Prompt, *, options:
     return out
 
 
+def _moving_with(mask: np.ndarray, points, grey: np.ndarray) -> np.ndarray:
+    """Frame 0's mask (h, w) bool cut down to what moves with the clicked points over the next frames.
+
+    Two objects that touch make one salient region, and a click keeps all of it; but they move
+    differently. The flow from frame 0 to frame ``_LOOKAHEAD`` (fewer in a short clip) is fitted, around
+    each point (its inscribed disc in the mask), by a homography (RANSAC), and the mask keeps the
+    connected region about the points whose flow that homography explains. When everything moves alike
+    (one object, or nothing moves) the mask stays whole.
+    """
+    if not points or len(grey) < 2:
+        return mask
+    later = min(len(grey) - 1, _LOOKAHEAD)
+    flow = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM).calc(grey[0], grey[later], None)
+    moved = np.linalg.norm(flow[mask], axis=1)
+    if not len(moved) or np.median(moved) < _MIN_FLOW:
+        return mask
+    depth = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, 5)
+    ys, xs = np.mgrid[:mask.shape[0], :mask.shape[1]]
+    keep = np.zeros_like(mask)
+    for x, y in points:
+        u, v = int(round(min(max(x, 0), mask.shape[1] - 1))), int(round(min(max(y, 0), mask.shape[0] - 1)))
+        radius = max(3.0, 0.8 * float(depth[v, u]))
+        near = mask & ((xs - u) ** 2 + (ys - v) ** 2 <= radius**2)
+        if near.sum() < 8:
+            return mask
+        source = np.stack([xs[near], ys[near]], axis=1).astype(np.float32)
+        homography, _ = cv2.findHomography(source, source + flow[near], cv2.RANSAC, 1.0)
+        if homography is None:
+            return mask
+        grid = np.stack([xs, ys], axis=2).astype(np.float32).reshape(-1, 1, 2)
+        predicted = cv2.perspectiveTransform(grid, homography).reshape(mask.shape + (2,))
+        error = np.linalg.norm(np.stack([xs, ys], axis=2) + flow - predicted, axis=2)
+        agrees = mask & (error < max(1.0, _AGREE_FLOW * float(np.median(moved))))
+        agrees = cv2.morphologyEx(agrees.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)).astype(bool)
+        n, labels = cv2.connectedComponents(agrees.astype(np.uint8), connectivity=8)
+        if labels[v, u]:
+            keep |= labels == labels[v, u]
+    share = keep.sum() / mask.sum()
+    if not _MIN_SHARE <= share <= _MAX_SHARE:  # nothing clear, or everything moves alike: the mask as it was
+        return mask
+    filled = keep_main_object(keep, keep_fraction=0.0)
+    return filled & mask
+
+
 def _follow(carried: np.ndarray, image: np.ndarray, automatic: np.ndarray | None, size: tuple[int, int],
             reach: int, snap: bool = True) -> np.ndarray:
     """A frame's mask from the previous one carried into it (h, w) bool, the frame (h, w, 3) at working size
@@ -107,6 +162,9 @@ def _follow(carried: np.ndarray, image: np.ndarray, automatic: np.ndarray | None
     if automatic is not None:
         found = _restricted(cv2.resize(automatic.astype(np.float32), size, interpolation=cv2.INTER_AREA) >= 0.5,
                             carried)
+        # Not past a few reaches from the carried mask: an object touching it is not let in.
+        disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * _GROWTH * reach + 1,) * 2)
+        found &= cv2.dilate(carried.astype(np.uint8), disc).astype(bool)
         if _iou(found, carried) >= _AGREE:
             return found
     if not snap:
