@@ -137,6 +137,25 @@ def test_eval_self_command_writes_the_table_1_outputs(tmp_path, clip, capsys, mo
     assert "--max-side" in one_error_line(capsys)
 
 
+def test_eval_self_follows_a_clicked_object_and_saves_its_masks(tmp_path, clip, capsys, monkeypatch):
+    from scipy import ndimage
+
+    from marionette.io import read_masks
+
+    monkeypatch.setattr("marionette.eval.self_eval.find_weights", lambda: None)
+    truth = read_masks(clip / "masks", count=12, size=(128, 96))
+    depth = ndimage.distance_transform_edt(truth[0])
+    y, x = np.unravel_index(np.argmax(depth), depth.shape)
+    out, masks = tmp_path / "eval", tmp_path / "masks"
+    assert main(["eval-self", str(clip / "frames"), "--source-point", f"{x},{y}", "--save-masks", str(masks),
+                 "--target", "frame0", "-o", str(out), "-q", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["outputs"]["masks"] == str(masks)
+    saved = read_masks(masks, count=12, size=(128, 96))
+    overlap = (saved & truth).sum(axis=(1, 2)) / (saved | truth).sum(axis=(1, 2))
+    assert overlap.min() > 0.8
+
+
 def test_eval_command_and_run_report_give_motion_fidelity(tmp_path, clip, target_png, capsys):
     out, report = tmp_path / "r.mp4", tmp_path / "r.json"
     assert main(["run", str(clip / "frames"), str(target_png), "--masks", str(clip / "masks"), "-o", str(out),
