@@ -736,7 +736,7 @@ def app_cmd(host: Annotated[str, typer.Option(
             port: Annotated[int, typer.Option(help="Port (0: any free port).")] = 8765,
             workdir: Annotated[Optional[Path], typer.Option(
                 help="Folder for uploads and results, one subfolder per browser session (default: a new "
-                     "temporary folder).")] = None,
+                     "temporary folder, removed when the app stops).")] = None,
             quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False, config: Config = None) -> None:
     """A local web page: upload a clip and a photo, click the objects, get the video (until Ctrl-C)."""
     from .app import run_app

@@ -8,6 +8,7 @@ trajectory), ``render_video`` (trajectory → video file).
 from __future__ import annotations
 
 import contextlib
+import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -49,7 +50,8 @@ from .transfer.velocity import integrate
 __all__ = ["extract", "source_masks", "reconstruct",
            "load_target", "relative_depth", "check_target", "check_part_seeds", "transfer", "output_cameras",
            "fit_view", "scene_compositor", "frames_outside", "render_frames", "render_video", "write_ply_frames",
-           "side_by_side", "write_side_by_side", "write_preview", "source_intrinsics", "DEFAULT_MAX_SIDE", "PLY_FRAME_NAME"]
+           "side_by_side", "write_side_by_side", "write_preview", "source_intrinsics", "DEFAULT_MAX_SIDE",
+           "PLY_FRAME_NAME"]
 
 #: Names of the per-frame files of :func:`write_ply_frames` (a folder of only these may be replaced).
 PLY_FRAME_NAME = r"\d{5,}\.ply"
@@ -342,6 +344,9 @@ def scene_compositor(target: LiftedTarget, *, inpaint: str = "fsr", detail: bool
     """
     if target.image is None:
         raise InputError("a scene background needs an image target (a .ply has no scene around it)")
+    if target.image.shape[2] == 4 and (target.image[..., 3] < 128).any():
+        warnings.warn("the photo is transparent around its object: the scene is whatever colour lies under its "
+                      "alpha", stacklevel=2)
     plate = clean_plate(target.image, target.mask, inpaint)
     return SceneCompositor.from_lift(target.gaussians, target.camera, target.pixel_of, target.image, plate, detail)
 

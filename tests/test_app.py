@@ -157,3 +157,11 @@ def test_chromium_upload_click_run_and_play(app, inputs):
     played = read_video(path)
     assert played.frames.shape[0] == 2 * FRAMES - 1  # half speed
     assert duration == pytest.approx(played.frames.shape[0] / played.fps, rel=0.2)
+
+
+def test_a_work_folder_the_app_made_itself_goes_when_it_stops():
+    server = serve_app(port=0)
+    root = server.sessions.root
+    assert root.is_dir()
+    server.stop()
+    assert not root.exists()

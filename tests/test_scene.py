@@ -184,3 +184,11 @@ def test_the_command_line_refuses_a_scene_it_cannot_have(tmp_path, prior_file, c
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: ") and message in err[0], err
     assert not out.exists()
+
+
+def test_a_transparent_photo_is_warned_about(tmp_path, prior_file, target_png, capsys):
+    from marionette.cli import main
+
+    out = tmp_path / "out.mp4"
+    assert main(["transfer", str(prior_file), str(target_png), "-o", str(out), "--background", "scene", "-q"]) == 0
+    assert "transparent around its object" in capsys.readouterr().err

@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import math
 import re
+import shutil
 import threading
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -177,8 +178,9 @@ class _Handler(BaseHTTPRequestHandler):
 class AppServer:
     """A running app: its ``url``; :meth:`stop` shuts it down."""
 
-    def __init__(self, host: str, port: int, workdir: Path) -> None:
+    def __init__(self, host: str, port: int, workdir: Path, temporary: bool = False) -> None:
         self.sessions = Sessions(workdir)
+        self._temporary = temporary
         handler = type("Handler", (_Handler,), {"sessions": self.sessions})
         self._server = ThreadingHTTPServer((host, port), handler)
         self._server.daemon_threads = True
@@ -188,14 +190,15 @@ class AppServer:
         self.url = f"http://{bound_host}:{bound_port}"
 
     def stop(self) -> None:
+        """Stop serving; a work folder the app made itself is removed with everything in it."""
         self._server.shutdown()
         self._server.server_close()
-        self.sessions.close()
+        self.sessions.close(remove=self._temporary)
 
 
 def serve_app(host: str = "127.0.0.1", port: int = 8765, workdir: str | Path | None = None) -> AppServer:
     """Start the app on ``host:port`` (0: any free port) and return at once; work files under ``workdir``
-    (default: a fresh temporary folder)."""
+    (default: a fresh temporary folder, removed when the app stops)."""
     import tempfile
 
     from ..viewer import _check_host
@@ -203,6 +206,8 @@ def serve_app(host: str = "127.0.0.1", port: int = 8765, workdir: str | Path | N
     _check_host(host)
     root = Path(workdir) if workdir is not None else Path(tempfile.mkdtemp(prefix="marionette-app-"))
     try:
-        return AppServer(host, int(port), root)
+        return AppServer(host, int(port), root, temporary=workdir is None)
     except OSError as e:
+        if workdir is None:
+            shutil.rmtree(root, ignore_errors=True)
         raise InputError(f"cannot listen on {host}:{port} ({e.strerror or e})") from None
