@@ -48,6 +48,17 @@ def test_the_plate_keeps_the_photo_outside_the_object_and_continues_the_scene_in
     assert errors["fsr"] < errors["telea"]
 
 
+@pytest.mark.parametrize("method", ["fsr", "patch", "telea"])
+def test_the_fill_does_not_depend_on_the_hidden_objects_colours(method):
+    """At a size the fill works on scaled down: recolouring the object changes nothing of the plate."""
+    photo, mask, _ = scene_photo()
+    photo = cv2.resize(photo, (300, 300), interpolation=cv2.INTER_NEAREST)
+    mask = cv2.resize(mask.astype(np.uint8), (300, 300), interpolation=cv2.INTER_NEAREST) > 0
+    recoloured = photo.copy()
+    recoloured[mask] = (250, 0, 250)
+    np.testing.assert_array_equal(clean_plate(photo, mask, method), clean_plate(recoloured, mask, method))
+
+
 @pytest.mark.parametrize("bad, message", [("everything", "covers the whole photo"), ("method", "inpainting method")])
 def test_the_plate_refuses_what_it_cannot_do(bad, message):
     photo, mask, _ = scene_photo()

@@ -38,7 +38,11 @@ def _fill(image: np.ndarray, hole: np.ndarray, method: str) -> np.ndarray:
     scale = min(1.0, _WORK_SIDE[method] / max(h, w))
     size = (max(1, round(w * scale)), max(1, round(h * scale)))
     small = cv2.resize(image, size, interpolation=cv2.INTER_AREA) if scale < 1 else image
-    small_hole = (cv2.resize(hole.astype(np.uint8), size, interpolation=cv2.INTER_AREA) > 0) if scale < 1 else hole
+    # Any share of hole makes a working pixel hole (uint8 area averages would round small shares away).
+    small_hole = (cv2.resize(hole.astype(np.float32), size, interpolation=cv2.INTER_AREA) > 0) if scale < 1 else hole
+    # The hidden object's own colours must not reach the fill (FSR reads the hole's values as its start):
+    # the hole starts as a diffusion of its surroundings.
+    small = cv2.inpaint(np.ascontiguousarray(small), small_hole.astype(np.uint8), 3, cv2.INPAINT_TELEA)
     filled = np.empty_like(small)
     known = (~small_hole).astype(np.uint8)
     if method == "fsr":
