@@ -83,10 +83,10 @@ class Session:
         Returns ``{"width", "height", "frames"?}``. Raises :class:`InputError` for what cannot be used (the
         file is removed again).
         """
-        suffix = Path(name).suffix.lower()
-        allowed = VIDEO_SUFFIXES + IMAGE_SUFFIXES if kind == "source" else IMAGE_SUFFIXES
         if kind not in ("source", "target"):
             raise InputError(f"unknown upload kind {kind!r}")
+        suffix = Path(name).suffix.lower()
+        allowed = VIDEO_SUFFIXES + IMAGE_SUFFIXES if kind == "source" else IMAGE_SUFFIXES
         if suffix not in allowed:
             what = "a video or an image" if kind == "source" else "an image"
             raise InputError(f"{name!r} is not {what} ({', '.join(allowed)})")

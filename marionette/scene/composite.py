@@ -45,7 +45,7 @@ from scipy import ndimage
 from ..camera import Camera
 from ..gaussians import Gaussians, rgb_to_sh
 from ..geometry import quaternion_to_matrix
-from ..render import render
+from ..render import RenderOutput, render
 
 __all__ = ["SceneCompositor"]
 
@@ -78,7 +78,7 @@ def _facing(gaussians: Gaussians, camera: Camera) -> np.ndarray:
 
 def _plane_homography(reference: Camera, camera: Camera, depth: float) -> np.ndarray | None:
     """(3, 3) map from ``camera``'s pixels to ``reference``'s for the plane ``z = depth`` of the reference
-    camera; None when the camera is the reference one (nothing to warp) or sees the plane edge-on."""
+    camera; None when the camera is the reference one (nothing to warp), zeros when the plane is behind it."""
     if (camera.width, camera.height) == (reference.width, reference.height) and np.allclose(
             camera.K, reference.K) and np.allclose(camera.world_to_camera, reference.world_to_camera):
         return None
@@ -106,20 +106,21 @@ class SceneCompositor:
     depth : float, camera z of the plate's plane in the reference camera.
     features : Gaussians, the object's surfels coloured with (w u / W, w v / H, w): each one's photo pixel
         ``(u, v)`` and detail weight ``w``.
-    detail : (H, W, 3) float32, the detail layer (zeros without one).
-    shift : (H, W, 2) float32, ``d``: frame 0's reported photo position of each pixel minus the pixel.
     rest : (H, W, 4) float32, frame 0's object render (premultiplied colour and coverage).
-    residual : (H, W, 3) float32, ``photo - frame 0`` with the detail layer (zeros without one).
+    detail : (H, W, 3) float32, the detail layer, or None without one.
+    shift : (H, W, 2) float32, ``d``: frame 0's reported photo position of each pixel minus the pixel (None
+        without a detail layer).
+    residual : (H, W, 3) float32, ``photo - frame 0`` with the detail layer, or None without it.
     """
 
     plate: np.ndarray
     camera: Camera
     depth: float
     features: Gaussians
-    detail: np.ndarray
-    shift: np.ndarray
     rest: np.ndarray
-    residual: np.ndarray
+    detail: np.ndarray | None = None
+    shift: np.ndarray | None = None
+    residual: np.ndarray | None = None
 
     @staticmethod
     def from_lift(gaussians: Gaussians, camera: Camera, pixel_of: np.ndarray, photo: np.ndarray,
@@ -137,30 +138,29 @@ class SceneCompositor:
         encoded = np.stack([weight * (pixel_of[:, 0] + 0.5) / camera.width,
                             weight * (pixel_of[:, 1] + 0.5) / camera.height, weight], axis=1)
         features = dataclasses.replace(gaussians, sh=rgb_to_sh(encoded)[:, None, :])
-        layer = np.zeros((camera.height, camera.width, 3), np.float32)
+        shown = render(gaussians, camera, (0.0, 0.0, 0.0))  # frame 0, rendered once for all the layers
+        compositor = SceneCompositor(plate.astype(np.float32) / 255.0, camera, depth, features,
+                                     np.concatenate([shown.image, shown.alpha[..., None]], axis=2))
+        if not detail:
+            return compositor
+        seen = render(features, camera, (0.0, 0.0, 0.0)).image
+        weight = seen[..., 2]
+        valid = weight >= _MIN_WEIGHT
+        difference = photo[..., :3].astype(np.float32) / 255.0 - compositor._layers(shown, None, camera)
+        layer = np.where(valid[..., None], np.clip(difference / np.maximum(weight, _FULL_WEIGHT)[..., None], -1.0, 1.0),
+                         0.0).astype(np.float32)
         shift = np.zeros((camera.height, camera.width, 2), np.float32)
-        residual = np.zeros((camera.height, camera.width, 3), np.float32)
-        shown = render(gaussians, camera, (0.0, 0.0, 0.0))
-        compositor = SceneCompositor(plate.astype(np.float32) / 255.0, camera, depth, features, layer, shift,
-                                     np.concatenate([shown.image, shown.alpha[..., None]], axis=2), residual)
-        if detail:
-            rest = compositor._composite(gaussians, features, camera, with_detail=False)
-            seen = render(features, camera, (0.0, 0.0, 0.0)).image
-            weight = seen[..., 2]
-            valid = weight >= _MIN_WEIGHT
-            difference = photo[..., :3].astype(np.float32) / 255.0 - rest
-            layer[...] = np.where(valid[..., None],
-                                  np.clip(difference / np.maximum(weight, _FULL_WEIGHT)[..., None], -1.0, 1.0), 0.0)
-            if valid.any():
-                u, v = compositor._reported(seen)
-                grid_v, grid_u = np.mgrid[:camera.height, :camera.width]
-                # Beyond the valid pixels d takes its nearest valid value, so the fixed point stays smooth.
-                _, (iy, ix) = ndimage.distance_transform_edt(~valid, return_indices=True)
-                shift[...] = np.stack([(u - grid_u)[iy, ix], (v - grid_v)[iy, ix]], axis=2)
-            if unmoved:
-                residual[...] = photo[..., :3].astype(np.float32) / 255.0 - compositor._composite(
-                    gaussians, features, camera, with_detail=True)
-        return compositor
+        if valid.any():
+            u, v = compositor._reported(seen)
+            grid_v, grid_u = np.mgrid[:camera.height, :camera.width]
+            # Beyond the valid pixels d takes its nearest valid value, so the fixed point stays smooth.
+            _, (iy, ix) = ndimage.distance_transform_edt(~valid, return_indices=True)
+            shift[...] = np.stack([(u - grid_u)[iy, ix], (v - grid_v)[iy, ix]], axis=2)
+        compositor = dataclasses.replace(compositor, detail=layer, shift=shift)
+        if not unmoved:
+            return compositor
+        residual = photo[..., :3].astype(np.float32) / 255.0 - compositor._layers(shown, seen, camera)
+        return dataclasses.replace(compositor, residual=residual)
 
     def _reported(self, seen: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """A features render (h, w, 3) → the photo positions (u, v) it reports, (h, w) float32 each."""
@@ -176,17 +176,17 @@ class SceneCompositor:
         return cv2.warpPerspective(self.plate, homography, (camera.width, camera.height),
                                    flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REFLECT_101)
 
-    def _composite(self, gaussians: Gaussians, features: Gaussians, camera: Camera, with_detail: bool) -> np.ndarray:
-        """(h, w, 3) float32 frame: ``gaussians`` over the plate, plus the detail layer read where they came from."""
-        shown = render(gaussians, camera, (0.0, 0.0, 0.0))  # premultiplied by coverage
+    def _layers(self, shown: RenderOutput, seen: np.ndarray | None, camera: Camera) -> np.ndarray:
+        """(h, w, 3) float32 frame from the object's render (over black) and its features' render ``seen``
+        (h, w, 3; None: no detail): the object over the plate, the last residual where nothing changed, and
+        the detail layer read where the surface came from."""
         background = self.background(camera)
         frame = shown.image + (1.0 - shown.alpha)[..., None] * background
-        if with_detail and background is self.plate:  # the photo's own camera: the last residual where unchanged
+        if self.residual is not None and background is self.plate:  # the photo's own camera
             change = np.concatenate([shown.image, shown.alpha[..., None]], axis=2) - self.rest
             keep = np.exp(-0.5 * (change**2).mean(axis=2) / _KEEP_SCALE**2)
             frame = frame + keep[..., None] * self.residual
-        if with_detail:
-            seen = render(features, camera, (0.0, 0.0, 0.0)).image
+        if seen is not None:
             weight = seen[..., 2]
             u, v = self._reported(seen)
             x, y = u, v
@@ -199,5 +199,6 @@ class SceneCompositor:
 
     def frame(self, gaussians: Gaussians, features: Gaussians, camera: Camera) -> np.ndarray:
         """(h, w, 3) uint8 frame of the moved ``gaussians`` and of ``features`` moved alike, seen by ``camera``."""
-        image = self._composite(gaussians, features, camera, with_detail=bool(self.detail.any()))
-        return (image * 255.0 + 0.5).astype(np.uint8)
+        shown = render(gaussians, camera, (0.0, 0.0, 0.0))  # premultiplied by coverage
+        seen = None if self.detail is None else render(features, camera, (0.0, 0.0, 0.0)).image
+        return (self._layers(shown, seen, camera) * 255.0 + 0.5).astype(np.uint8)

@@ -29,7 +29,7 @@ from ..io.video import PackedMasks, VideoFrames, check_frames
 from ..segment import SalientModel
 from ..segment._grabcut import keep_main_object
 from ..segment.prompt import Prompt, prompted_mask
-from .foreground import ForegroundOptions, _Flows, _snap_to_edges, _warp, auto_masks
+from .foreground import ForegroundOptions, _Flows, _pixel_grid, _snap_to_edges, _warp, auto_masks
 
 __all__ = ["prompted_masks"]
 
@@ -80,7 +80,9 @@ def prompted_masks(frames: np.ndarray | VideoFrames, prompt: Prompt, *, options:
     def small(t: int) -> np.ndarray:
         return cv2.resize(frames[t], (w, h), interpolation=cv2.INTER_AREA) if (w, h) != (W, H) else frames[t]
 
-    first = prompted_mask(small(0), prompt.scaled(w / W), model=model)  # a bad prompt fails before the long work
+    colour = [small(t) for t in range(T)]
+    scaled = prompt.scaled(w / W)
+    first = prompted_mask(colour[0], scaled, model=model)  # a bad prompt fails before the long work
     total = 5 * T - 2  # auto_masks reports 4 T - 2 steps, then one per frame here
 
     def report(done: int, _: int) -> None:
@@ -91,9 +93,8 @@ def prompted_masks(frames: np.ndarray | VideoFrames, prompt: Prompt, *, options:
         automatic = auto_masks(frames, options=options, model=model, packed=True, progress=report)
     except InputError:  # nothing salient or moving anywhere: the carried masks alone
         automatic = None
-    colour = [small(t) for t in range(T)]
     grey = np.stack([cv2.cvtColor(c, cv2.COLOR_RGB2GRAY) for c in colour])
-    first = _moving_with(first, [p for p in prompt.scaled(w / W).points], grey)
+    first = _moving_with(first, scaled.points, grey)
     bwd = _Flows(grey, forward=False, keep=2)  # flow t+1 → t, in frame t+1's grid
     reach = max(1, round(options.reach * max(w, h)))
     masks = PackedMasks(T, h, w)
@@ -128,7 +129,8 @@ def _moving_with(mask: np.ndarray, points, grey: np.ndarray) -> np.ndarray:
     if not len(moved) or np.median(moved) < _MIN_FLOW:
         return mask
     depth = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, 5)
-    ys, xs = np.mgrid[:mask.shape[0], :mask.shape[1]]
+    grid = _pixel_grid(*mask.shape)  # (h, w, 2) pixel positions (u, v)
+    xs, ys = grid[..., 0], grid[..., 1]
     keep = np.zeros_like(mask)
     for x, y in points:
         u, v = int(round(min(max(x, 0), mask.shape[1] - 1))), int(round(min(max(y, 0), mask.shape[0] - 1)))
@@ -136,16 +138,15 @@ def _moving_with(mask: np.ndarray, points, grey: np.ndarray) -> np.ndarray:
         near = mask & ((xs - u) ** 2 + (ys - v) ** 2 <= radius**2)
         if near.sum() < 8:
             return mask
-        source = np.stack([xs[near], ys[near]], axis=1).astype(np.float32)
+        source = grid[near]
         homography, _ = cv2.findHomography(source, source + flow[near], cv2.RANSAC, 1.0)
         if homography is None:
             return mask
-        grid = np.stack([xs, ys], axis=2).astype(np.float32).reshape(-1, 1, 2)
-        predicted = cv2.perspectiveTransform(grid, homography).reshape(mask.shape + (2,))
-        error = np.linalg.norm(np.stack([xs, ys], axis=2) + flow - predicted, axis=2)
+        predicted = cv2.perspectiveTransform(grid.reshape(-1, 1, 2), homography).reshape(grid.shape)
+        error = np.linalg.norm(grid + flow - predicted, axis=2)
         agrees = mask & (error < max(1.0, _AGREE_FLOW * float(np.median(moved))))
         agrees = cv2.morphologyEx(agrees.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)).astype(bool)
-        n, labels = cv2.connectedComponents(agrees.astype(np.uint8), connectivity=8)
+        _, labels = cv2.connectedComponents(agrees.astype(np.uint8), connectivity=8)
         if labels[v, u]:
             keep |= labels == labels[v, u]
     share = keep.sum() / mask.sum()
