@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
+import numba
 import numpy as np
 
 from .errors import InputError
-from .geometry import quaternion_multiply
 
 __all__ = ["Gaussians", "SH_C0", "rgb_to_sh", "sh_to_rgb"]
 
@@ -104,17 +104,24 @@ class Gaussians:
         """The same Gaussians moved to ``means`` (N, 3)."""
         return replace(self, means=means)
 
-    def turned(self, quats: np.ndarray) -> "Gaussians":
-        """Orientations pre-multiplied by unit quaternions (N, 4) or (4,) ``w, x, y, z``; means unchanged.
+    def turned(self, quats: np.ndarray, labels: np.ndarray | None = None) -> "Gaussians":
+        """Orientations pre-multiplied by unit quaternions ``w, x, y, z``; means unchanged.
+
+        ``quats`` is one quaternion (4,) for all, one per Gaussian (N, 4), or with ``labels`` (N,) int
+        one per group (P, 4), Gaussian i turned by ``quats[labels[i]]``.
 
         SH coefficients beyond degree 0 are not rotated (they are rare in
         single-image targets, and rotating them is a later refinement).
         """
-        own = self.quats.astype(np.float64)
-        own /= np.maximum(np.linalg.norm(own, axis=1, keepdims=True), 1e-300)
-        new = quaternion_multiply(np.asarray(quats, dtype=np.float64), own)
-        new *= np.where(new[:, :1] < 0, -1.0, 1.0)  # w >= 0, as matrix_to_quaternion gives
-        return replace(self, quats=new.astype(np.float32))
+        turns = np.ascontiguousarray(np.asarray(quats, dtype=np.float64).reshape(-1, 4))
+        if labels is None:
+            if len(turns) not in (1, len(self)):
+                raise InputError(f"turned: {len(turns)} quaternions for {len(self)} Gaussians")
+            labels = np.zeros(len(self), np.int64) if len(turns) == 1 else np.arange(len(self))
+        labels = np.asarray(labels)
+        if labels.shape != (len(self),) or (len(labels) and (labels.min() < 0 or labels.max() >= len(turns))):
+            raise InputError(f"turned: labels must be ({len(self)},) indices into {len(turns)} quaternions")
+        return replace(self, quats=_turn(self.quats, turns, labels))
 
     @staticmethod
     def concatenate(parts: list["Gaussians"]) -> "Gaussians":
@@ -145,3 +152,25 @@ class Gaussians:
             quats = np.tile(np.array([1, 0, 0, 0], np.float32), (n, 1))
         return Gaussians(means, quats, np.log(scales), np.log(op / (1 - op)),
                          rgb_to_sh(rgb)[:, None, :])
+
+
+@numba.njit(parallel=True, cache=True)
+def _turn(own, turns, labels):
+    """Quaternions own (N, 4) float32, normalised, pre-multiplied by ``turns[labels[i]]`` (P, 4) float64,
+    ``w >= 0`` (as :func:`~marionette.geometry.matrix_to_quaternion` gives) → (N, 4) float32.
+
+    What ``quaternion_multiply(turns[labels], own / |own|)`` computes, without its (N, 4) float64
+    temporaries: a frame of a moving target turns every Gaussian.
+    """
+    out = np.empty(own.shape, np.float32)
+    for i in numba.prange(own.shape[0]):
+        w, x, y, z = np.float64(own[i, 0]), np.float64(own[i, 1]), np.float64(own[i, 2]), np.float64(own[i, 3])
+        norm = max(np.sqrt(w * w + x * x + y * y + z * z), 1e-300)
+        w, x, y, z = w / norm, x / norm, y / norm, z / norm
+        a = turns[labels[i]]
+        product = (a[0] * w - a[1] * x - a[2] * y - a[3] * z, a[0] * x + a[1] * w + a[2] * z - a[3] * y,
+                   a[0] * y - a[1] * z + a[2] * w + a[3] * x, a[0] * z + a[1] * y - a[2] * x + a[3] * w)
+        sign = -1.0 if product[0] < 0 else 1.0
+        for k in range(4):
+            out[i, k] = np.float32(sign * product[k])
+    return out

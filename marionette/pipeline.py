@@ -373,8 +373,10 @@ def render_frames(gaussians: Gaussians, trajectory: Trajectory, camera: Camera |
         if isinstance(background, SceneCompositor):
             frame = background.frame(trajectory.frame(gaussians, t), trajectory.frame(background.features, t), cam)
         else:
-            frame = (np.clip(render(trajectory.frame(gaussians, t), cam, background).image, 0, 1) * 255
-                     + 0.5).astype(np.uint8)
+            image = render(trajectory.frame(gaussians, t), cam, background).image  # in [0, 1], ours to change
+            image *= 255
+            image += 0.5
+            frame = image.astype(np.uint8)
         if progress:
             progress(t + 1, trajectory.num_frames)
         yield frame

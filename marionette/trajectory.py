@@ -54,4 +54,4 @@ class Trajectory:
     def frame(self, gaussians: Gaussians, t: int) -> Gaussians:
         """The Gaussians as they are at frame ``t``: moved and turned."""
         turn = matrix_to_quaternion(self.part_rotations[t].astype(np.float64))  # (P, 4): one per part
-        return gaussians.with_means(self.means[t]).turned(turn[self.labels])
+        return gaussians.with_means(self.means[t]).turned(turn, self.labels)

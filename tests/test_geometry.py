@@ -102,3 +102,29 @@ def test_quaternion_product_composes_rotations_and_turning_gaussians_matches_the
     turns = quaternion_to_matrix(a)
     expected = matrix_to_quaternion(turns @ quaternion_to_matrix(g.quats))
     np.testing.assert_allclose(g.turned(a).quats, expected, atol=1e-6)
+
+
+def test_turning_by_group_is_turning_each_gaussian_by_its_groups_quaternion():
+    """``turned(quats (P, 4), labels)`` (the numba kernel a moving target's frames use) against the
+    NumPy product on the quaternions picked per Gaussian, and the one- and per-Gaussian forms."""
+    from marionette.errors import InputError
+    from marionette.gaussians import Gaussians
+    from marionette.geometry import quaternion_multiply
+
+    rng = np.random.default_rng(3)
+    g = Gaussians.from_rgb(rng.normal(size=(200, 3)), rng.uniform(size=(200, 3)), np.full(200, 0.1),
+                           quats=rng.normal(size=(200, 4)) * rng.uniform(0.1, 10, size=(200, 1)))
+    turns = rng.normal(size=(3, 4))
+    turns /= np.linalg.norm(turns, axis=1, keepdims=True)
+    labels = rng.integers(0, 3, size=200)
+    own = g.quats.astype(np.float64) / np.linalg.norm(g.quats.astype(np.float64), axis=1, keepdims=True)
+    expected = quaternion_multiply(turns[labels], own)
+    expected *= np.where(expected[:, :1] < 0, -1.0, 1.0)
+    np.testing.assert_allclose(g.turned(turns, labels).quats, expected, rtol=0, atol=1e-7)
+    np.testing.assert_array_equal(g.turned(turns, labels).quats, g.turned(turns[labels]).quats)
+    np.testing.assert_array_equal(g.turned(turns[1]).quats, g.turned(turns, np.ones(200, int)).quats)
+    assert np.all(g.turned(turns, labels).quats[:, 0] >= 0)
+    with pytest.raises(InputError):
+        g.turned(turns, np.full(200, 3))
+    with pytest.raises(InputError):
+        g.turned(turns)  # three quaternions for 200 Gaussians, no labels

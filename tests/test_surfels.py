@@ -88,6 +88,18 @@ def test_walls_are_not_rim_pixels_drawn_out_along_depth():
     assert len(g) < 6 * inside.sum()  # sampled by area: front, back and walls, not a pile per pixel
 
 
+@pytest.mark.parametrize("shape", ["inflate", "revolve"])
+def test_a_steep_slope_gets_long_surfels_not_a_row_of_small_ones(shape):
+    img, inside = disc_photo()
+    g = lift(img, shape).gaussians
+    # The photo holds about a pixel of detail down a slope near the outline: one surfel up to three cells
+    # long covers it (a row of one-cell surfels there made about five surfels per photo pixel).
+    assert len(g) < 4 * inside.sum()
+    tangent = np.sort(g.scales, axis=1)[:, 1:]
+    elongation = tangent[:, 1] / tangent[:, 0]
+    assert 2.0 < elongation.max() < 6.0
+
+
 def test_surfels_are_flat_and_face_along_the_surface_normal():
     img, inside = disc_photo()
     lifted = lift(img, "extrude")

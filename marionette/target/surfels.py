@@ -11,9 +11,12 @@ their cells (``_INSET``).
 
 Each patch gets samples in proportion to its area: a patch is split into
 ``k_u x k_v`` sub-patches, ``k`` its 3D edge over the cell's own width (a
-flat cell keeps one sample, a steep one near the outline gets a row of them
-down the slope). Each sample is a Gaussian flattened along the patch
-normal (``_FLATNESS``) and as wide as its sub-patch (``_OVERLAP`` of it, so
+wall gets a row of samples from front to back). On the sheets a sample may
+be up to ``_SLOPE_ASPECT`` cells long: a steep patch near the outline is
+seen edge-on in the photo, which holds about a pixel of detail down it, so
+one long sample covers it where a row of small ones would only cost render
+time. Each sample is a Gaussian flattened along the patch normal
+(``_FLATNESS``) and as wide as its sub-patch (``_OVERLAP`` of it, so
 neighbours close), so side views stay sharp and closed.
 
 Colour comes from the photo at the sample's own pixel position, and only
@@ -49,6 +52,9 @@ _INSET = 0.8
 _FLATNESS = 0.2
 # At most this many samples along one patch edge.
 _MAX_SPLIT = 64
+# A sheet's surfel may be this many times longer down a slope than the cell is wide: the photo holds about
+# one pixel of detail along a steep slope (it is seen edge-on), so more samples there add only cost.
+_SLOPE_ASPECT = 3.0
 # Blur levels (share of the object's pixel radius) for slanted patches and walls.
 _BLUR_LEVELS = (0.0, 0.01, 0.02, 0.04)
 _WALL_LEVEL = 1
@@ -101,9 +107,10 @@ def _unproject(camera: Camera, u: np.ndarray, v: np.ndarray, z: np.ndarray) -> n
     return np.stack([(u - camera.cx) / camera.fx * z, (v - camera.cy) / camera.fy * z, z], axis=-1)
 
 
-def _split(length: np.ndarray, width: np.ndarray) -> np.ndarray:
-    """Samples along an edge of 3D ``length`` on a cell ``width`` wide: the nearest whole number of widths."""
-    return np.clip(np.rint(length / width), 1, _MAX_SPLIT).astype(np.int64)
+def _split(length: np.ndarray, width: np.ndarray, aspect: float) -> np.ndarray:
+    """Samples along an edge of 3D ``length`` on a cell ``width`` wide, each up to ``aspect`` widths long:
+    the nearest whole number of those lengths."""
+    return np.clip(np.rint(length / (aspect * width)), 1, _MAX_SPLIT).astype(np.int64)
 
 
 def _sub_grid(ku: np.ndarray, kv: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -221,13 +228,16 @@ def _edge_vectors(p4: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return 0.5 * (p4[:, 1] - p4[:, 0] + p4[:, 3] - p4[:, 2]), 0.5 * (p4[:, 2] - p4[:, 0] + p4[:, 3] - p4[:, 1])
 
 
-def _edges(p4: np.ndarray, width: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Bilinear patches with corners (P, 4, 3) (ordered 00, 10, 01, 11) split by area on cells ``width`` wide.
+def _edges(p4: np.ndarray, width: np.ndarray, aspect: float = 1.0
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Bilinear patches with corners (P, 4, 3) (ordered 00, 10, 01, 11) split by area on cells ``width`` wide,
+    into samples up to ``aspect`` widths long.
 
     Returns the mean edge vectors (P, 3) ``e_a``, ``e_b`` and the splits (P,) ``k_a``, ``k_b``.
     """
     e_a, e_b = _edge_vectors(p4)
-    return e_a, e_b, _split(np.linalg.norm(e_a, axis=1), width), _split(np.linalg.norm(e_b, axis=1), width)
+    return (e_a, e_b, _split(np.linalg.norm(e_a, axis=1), width, aspect),
+            _split(np.linalg.norm(e_b, axis=1), width, aspect))
 
 
 def _sheet(grid: _Grid, points: np.ndarray, s: int) -> _Patches:
@@ -235,7 +245,7 @@ def _sheet(grid: _Grid, points: np.ndarray, s: int) -> _Patches:
     ci, cj = grid.ci, grid.cj
     corners = [(ci, cj), (ci, cj + 1), (ci + 1, cj), (ci + 1, cj + 1)]
     p4 = np.stack([points[i, j] for i, j in corners], axis=1)  # (P, 4, 3)
-    e_u, e_v, ku, kv = _edges(p4, grid.width)
+    e_u, e_v, ku, kv = _edges(p4, grid.width, _SLOPE_ASPECT)
     stretch = np.linalg.norm(np.cross(e_u, e_v), axis=1) / grid.width**2  # area over footprint, >= ~1
     level = np.clip(np.floor(np.log2(np.maximum(stretch, 1.0)) / 2), 0, len(_BLUR_LEVELS) - 1).astype(np.int64)
     # Both sheets read the pixel the sample lies on (or behind): the back is the front's mirror image.

@@ -208,6 +208,8 @@ def integrate(means: np.ndarray, labels: np.ndarray, prior: SpatPrior, *, anchor
         else:
             mu = mu + v  # Euler step, paper Eq. 6
         out[t + 1] = mu
-    unsorted = np.empty_like(out)
-    unsorted[:, perm] = out
-    return Trajectory(unsorted, rots.astype(np.float32), labels.astype(np.int32))
+    if np.any(perm != np.arange(len(perm))):  # back to the Gaussians' own order
+        unsorted = np.empty_like(out)
+        unsorted[:, perm] = out
+        out = unsorted
+    return Trajectory(out, rots.astype(np.float32), labels.astype(np.int32))
