@@ -16,24 +16,30 @@ frame 0 anchor ``R_t`` to frame 0 directly, re-seeded ones bridge frames
 that no frame-0 track reaches (their error is that of one earlier frame,
 not a sum over all steps).
 
-The camera's translation is not estimated: the parallax it causes on a far
-background is a fraction of a pixel, below what tracks resolve robustly,
-and near backgrounds (a table top) are mostly planar, where translation and
-rotation are confused. ``world_to_camera`` therefore has zero translation;
-an object pose in the world is off by the camera's travel, which
-``residual_px`` (the parallax the rotation model leaves) bounds.
+On a far background the parallax of the camera's travel is a fraction of a
+pixel, and this model is all there is to fit. When it leaves much of a near
+background unexplained (fewer than ``full_below`` of the tracks agree in some
+frames) and an object depth is given, the camera's full pose is fitted too
+(:func:`~marionette.source.camera_pose.fit_camera_poses`) and kept if the
+background agrees with it better. Its translation is known only up to scale
+from one video; the scale puts the background points next to the object in
+frame 0 (the nearest quarter of them) at the object's depth, the usual case
+of an object standing on the ground or in its surroundings.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy import ndimage
 
 from ..errors import InputError
 from ..geometry import invert_transform, make_transform
 from ..io.video import PackedMasks
+from .camera_pose import CameraPoses, fit_camera_poses
 from .tracks import Tracks, _check_video, track
 
 __all__ = ["CameraMotion", "estimate_camera_motion", "to_world"]
@@ -63,6 +69,12 @@ class CameraMotion:
         they were seeded, in pixels: the static test's statistic.
     num_tracks : int
         Background tracks used.
+    model : str
+        ``"static"``, ``"rotation"``, or ``"rotation and translation"``.
+    rotation_agreement : float
+        10th percentile over frames 1.. of the share of background tracks the
+        rotation model explains (1 for a static camera): the statistic that
+        decides whether the full model is tried.
     """
 
     world_to_camera: np.ndarray
@@ -71,6 +83,13 @@ class CameraMotion:
     residual_px: np.ndarray
     displacement_px: float
     num_tracks: int
+    model: str = "rotation"
+    rotation_agreement: float = 1.0
+
+    @property
+    def agreement(self) -> float:
+        """10th percentile over frames 1.. of the share of background tracks the chosen model explains."""
+        return float(np.percentile(self.inlier_ratio[1:], 10)) if len(self.inlier_ratio) > 1 else 1.0
 
 
 def _kabsch(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
@@ -115,8 +134,10 @@ def _displacement(tracks: Tracks) -> float:
 def estimate_camera_motion(frames: np.ndarray, object_masks: np.ndarray, K: np.ndarray, *, margin: int = 8,
                            spacing: int = 20, min_eigen: float = 5e-5, threshold_px: float = 1.0,
                            static_px: float = 0.5, min_tracks: int = 8, iterations: int = 200,
+                           object_depth: float | None = None, full_below: float = 0.5,
                            seed: int = 0) -> CameraMotion:
-    """Estimate the camera's rotation per frame from tracks on the background.
+    """Estimate the camera's motion per frame from tracks on the background: a rotation, or a full pose
+    where a near background shows parallax (see the module notes).
 
     Parameters
     ----------
@@ -144,6 +165,12 @@ def estimate_camera_motion(frames: np.ndarray, object_masks: np.ndarray, K: np.n
         Fewest inlier tracks to trust a frame's rotation.
     iterations : int
         RANSAC hypotheses per frame.
+    object_depth : float, optional
+        Camera depth of the object's centre in frame 0 (world units): sets the scale of a translation.
+        Without it only rotations are estimated.
+    full_below : float
+        The full pose is tried when the rotation explains fewer than this share of the background tracks
+        in a tenth of the frames.
     seed : int
         RANSAC random seed (results are deterministic).
 
@@ -165,7 +192,7 @@ def estimate_camera_motion(frames: np.ndarray, object_masks: np.ndarray, K: np.n
     displacement = _displacement(tracks)
     if displacement < static_px:
         return CameraMotion(identity, True, np.ones(num_frames), np.zeros(num_frames), displacement,
-                            tracks.num_tracks)
+                            tracks.num_tracks, "static")
 
     bearings = _bearings(tracks.uv.astype(np.float64), k)  # (T, M, 3), NaN where not visible
     world = np.where((tracks.start == 0)[:, None], bearings[0], np.nan)  # (M, 3) direction in the world
@@ -184,8 +211,37 @@ def estimate_camera_motion(frames: np.ndarray, object_masks: np.ndarray, K: np.n
                 residual[t] = focal * np.sqrt(np.mean(err ** 2))
         fresh = tracks.visible[t] & ~np.isfinite(world[:, 0])
         world[fresh] = bearings[t, fresh] @ rotations[t]  # R^T b, row-wise
-    return CameraMotion(make_transform(rotations, np.zeros(3)), False, inlier_ratio, residual, displacement,
-                        tracks.num_tracks)
+    rotation_only = CameraMotion(make_transform(rotations, np.zeros(3)), False, inlier_ratio, residual,
+                                 displacement, tracks.num_tracks, "rotation")
+    rotation_only = dataclasses.replace(rotation_only, rotation_agreement=rotation_only.agreement)
+    if object_depth is None or rotation_only.agreement >= full_below:
+        return rotation_only
+    full = fit_camera_poses(tracks, k, threshold_px=threshold_px, seed=seed)
+    if full is None:
+        return rotation_only
+    scale = _scale(full, tracks, object_masks[0], k, object_depth)
+    if scale is None:
+        return rotation_only
+    candidate = dataclasses.replace(rotation_only, world_to_camera=make_transform(
+        full.world_to_camera[:, :3, :3], scale * full.world_to_camera[:, :3, 3]), inlier_ratio=full.inlier_ratio,
+        residual_px=full.residual_px, model="rotation and translation")
+    return candidate if candidate.agreement > rotation_only.agreement else rotation_only
+
+
+def _scale(full: CameraPoses, tracks: Tracks, object_mask: np.ndarray, k: np.ndarray, object_depth: float
+           ) -> float | None:
+    """World units per unit of ``full``'s translation: the background points nearest the object in frame 0
+    (the closest quarter of those seen there, by image distance to its mask) put at the object's depth;
+    None when frame 0 sees no point in front of the camera."""
+    seen = np.nonzero(tracks.visible[0] & np.isfinite(full.points[:, 0]) & (full.points[:, 2] > 0))[0]
+    if not len(seen):
+        return None
+    distance = ndimage.distance_transform_edt(~object_mask.astype(bool))
+    h, w = distance.shape
+    u = np.clip(np.rint(tracks.uv[0, seen, 0]).astype(int), 0, w - 1)
+    v = np.clip(np.rint(tracks.uv[0, seen, 1]).astype(int), 0, h - 1)
+    nearest = seen[np.argsort(distance[v, u], kind="stable")[:max(1, len(seen) // 4)]]
+    return float(object_depth / np.median(full.points[nearest, 2]))
 
 
 def to_world(poses_cam: np.ndarray, camera_motion: CameraMotion) -> np.ndarray:

@@ -257,26 +257,28 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
         tracks = track(frames, masks, spacing=options.spacing, window=options.window, levels=options.levels,
                        fb_threshold=options.fb_threshold, reseed_every=options.reseed_every,
                        min_eigen=options.min_eigen, progress=progress)
-    camera, camera_note = None, "not estimated"
+    whole = (_depth_shape(masks[0], depths[0], k, options.relief) if depths is not None
+             else ShapePrior.inflate(masks[0], k, relief=options.relief))
+    camera, camera_note, camera_model = None, "not estimated", None
     if options.camera_motion:
         with stages("camera", "camera motion", 1) as progress:
-            camera = estimate_camera_motion(frames, masks, k)
+            camera = estimate_camera_motion(frames, masks, k, object_depth=float(whole.centroid[2]))
             progress(1, 1)
-        agreement = float(np.percentile(camera.inlier_ratio[1:], 10))
         camera_note = "static" if camera.static else "removed"
-        if not camera.static and agreement < _CAMERA_AGREEMENT:
-            warnings.warn(f"the camera moves, but only {agreement:.0%} of the background agrees with a camera "
-                          "rotation in some frames (parallax of a near background?): poses are left relative to "
-                          "the camera", stacklevel=2)
-            camera, camera_note = None, f"unreliable (background agreement {agreement:.0%}), kept"
+        camera_model = {"model": camera.model, "background_agreement": round(camera.agreement, 3),
+                        "rotation_agreement": round(camera.rotation_agreement, 3),
+                        "residual_px": round(float(np.median(camera.residual_px[1:])) if num_frames > 1 else 0.0, 3)}
+        if not camera.static and camera.agreement < _CAMERA_AGREEMENT:
+            warnings.warn(f"the camera moves, but only {camera.agreement:.0%} of the background agrees with a "
+                          f"camera {camera.model} in some frames: poses are left relative to the camera",
+                          stacklevel=2)
+            camera, camera_note = None, f"unreliable (background agreement {camera.agreement:.0%}), kept"
     metadata = {"method": "lk-tracks+" + ("depth-umeyama" if depths is not None else "inflated-shape+pnp+ba"),
                 "options": dataclasses.asdict(options), "num_tracks": tracks.num_tracks,
-                "camera_motion": camera_note,
+                "camera_motion": camera_note, "camera_model": camera_model,
                 "timings": stages.timings}
     common = dict(fps=fps, image_size=(w, h), intrinsics=k)
     extras = {"tracks_uv": tracks.uv, "tracks_visible": tracks.visible}
-    whole = (_depth_shape(masks[0], depths[0], k, options.relief) if depths is not None
-             else ShapePrior.inflate(masks[0], k, relief=options.relief))
 
     motion = _motion_px(tracks) if camera is None or camera.static else np.inf
     few = tracks.num_tracks < options.rigid.min_points
