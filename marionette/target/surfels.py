@@ -294,7 +294,7 @@ def _emit_numpy(patches: _Patches, texture: _Texture, rotation: np.ndarray) -> _
                     patches.pixel[patch])
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _lerp2(image, v0, u0, v1, u1, fv, fu, c):
     """Channel ``c`` of ``image`` (H, W, C) between pixels (v0, u0) and (v1, u1) at fractions (fv, fu)."""
     return ((1 - fv) * ((1 - fu) * image[v0, u0, c] + fu * image[v0, u1, c])
@@ -303,17 +303,17 @@ def _lerp2(image, v0, u0, v1, u1, fv, fu, c):
 
 # The kernel's vector helpers work on (x, y, z) tuples: they stay in registers, where small arrays would be
 # allocated per patch.
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _cross3(a, b):
     return a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _dot3(a, b):
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _unit_or(v, fallback):
     """``v`` normalised, or ``fallback`` when too short to have a direction (as :func:`_unit`)."""
     norm = np.sqrt(_dot3(v, v))
@@ -322,7 +322,7 @@ def _unit_or(v, fallback):
     return fallback
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _perpendicular_one(v):
     """As :func:`_perpendicular` for one vector: ``v`` crossed with the axis it has least of."""
     x, y, z = abs(v[0]), abs(v[1]), abs(v[2])
