@@ -50,6 +50,15 @@ def reversals(values, tolerance: float = 2.0) -> int:
     return count
 
 
+def _camera(metadata: dict) -> str:
+    """The camera column: what was done, and how much of the background each model tried explains."""
+    model = metadata.get("camera_model") or {}
+    fits = [f"rotation {model['rotation_agreement']:.0%}"] if "rotation_agreement" in model else []
+    if model.get("full_pose_agreement") is not None:
+        fits.append(f"full pose {model['full_pose_agreement']:.0%}")
+    return metadata["camera_motion"] + (f" ({model['model']}; {', '.join(fits)})" if model else "")
+
+
 def run_one(case: str, plot: Path | None) -> dict:
     """Extract one case in this process; figures as a dict."""
     import numpy as np
@@ -73,7 +82,7 @@ def run_one(case: str, plot: Path | None) -> dict:
         "final_angle": float(rotation_angle_deg(rot[-1])), "max_angle": float(rotation_angle_deg(rot).max()),
         "yaw_range": float(vec[:, 1].max() - vec[:, 1].min()),
         "yaw_sign_changes": reversals(vec[:, 1]),
-        "timings": prior.metadata["timings"], "camera": prior.metadata["camera_motion"],
+        "timings": prior.metadata["timings"], "camera": _camera(prior.metadata),
         "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
     }
 

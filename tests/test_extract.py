@@ -197,6 +197,10 @@ def test_camera_motion_is_removed():
     scene = make_scene("outofplane", seed=0, num_frames=24, size=(240, 180), camera_motion="pan")
     prior = extract_prior(scene.frames, scene.masks, scene.camera.K, scene.fps)
     assert prior.metadata["camera_motion"] == "removed"
+    # A pan over a far background: the rotation explains it, and the full pose is not tried.
+    camera = prior.metadata["camera_model"]
+    assert camera["model"] == "rotation" and camera["background_agreement"] > 0.8
+    assert camera["full_pose_agreement"] is None
     assert np.median(rotation_errors(prior.poses[0], scene.poses[0])[1:]) < 1.5
 
 

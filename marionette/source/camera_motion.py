@@ -75,6 +75,9 @@ class CameraMotion:
         10th percentile over frames 1.. of the share of background tracks the
         rotation model explains (1 for a static camera): the statistic that
         decides whether the full model is tried.
+    full_agreement : float or None
+        The same for the full pose when it was tried (0 when no two views fixed
+        it), None when it was not.
     """
 
     world_to_camera: np.ndarray
@@ -85,6 +88,7 @@ class CameraMotion:
     num_tracks: int
     model: str = "rotation"
     rotation_agreement: float = 1.0
+    full_agreement: float | None = None
 
     @property
     def agreement(self) -> float:
@@ -217,15 +221,16 @@ def estimate_camera_motion(frames: np.ndarray, object_masks: np.ndarray, K: np.n
     if object_depth is None or rotation_only.agreement >= full_below:
         return rotation_only
     full = fit_camera_poses(tracks, k, threshold_px=threshold_px, seed=seed)
-    if full is None:
-        return rotation_only
-    scale = _scale(full, tracks, object_masks[0], k, object_depth)
+    scale = None if full is None else _scale(full, tracks, object_masks[0], k, object_depth)
     if scale is None:
-        return rotation_only
+        return dataclasses.replace(rotation_only, full_agreement=0.0)
     candidate = dataclasses.replace(rotation_only, world_to_camera=make_transform(
         full.world_to_camera[:, :3, :3], scale * full.world_to_camera[:, :3, 3]), inlier_ratio=full.inlier_ratio,
         residual_px=full.residual_px, model="rotation and translation")
-    return candidate if candidate.agreement > rotation_only.agreement else rotation_only
+    candidate = dataclasses.replace(candidate, full_agreement=candidate.agreement)
+    if candidate.agreement > rotation_only.agreement:
+        return candidate
+    return dataclasses.replace(rotation_only, full_agreement=candidate.agreement)
 
 
 def _scale(full: CameraPoses, tracks: Tracks, object_mask: np.ndarray, k: np.ndarray, object_depth: float

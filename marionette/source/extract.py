@@ -267,6 +267,8 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
         camera_note = "static" if camera.static else "removed"
         camera_model = {"model": camera.model, "background_agreement": round(camera.agreement, 3),
                         "rotation_agreement": round(camera.rotation_agreement, 3),
+                        "full_pose_agreement": (None if camera.full_agreement is None
+                                                else round(camera.full_agreement, 3)),
                         "residual_px": round(float(np.median(camera.residual_px[1:])) if num_frames > 1 else 0.0, 3)}
         if not camera.static and camera.agreement < _CAMERA_AGREEMENT:
             warnings.warn(f"the camera moves, but only {camera.agreement:.0%} of the background agrees with a "
