@@ -71,6 +71,10 @@ def test_it_repeats_exactly_and_refuses_a_background_it_cannot_fix():
     assert first.world_to_camera.tobytes() == second.world_to_camera.tobytes()
     few = Tracks(tracks.uv[:, :8], tracks.visible[:, :8], tracks.start[:8])
     assert fit_camera_poses(few, K) is None
+    # Tracks that no camera explains (each frame's positions drawn anew): no two views fix a pose.
+    rng = np.random.default_rng(5)
+    scrambled = np.where(tracks.visible[..., None], rng.uniform(0, [W, H], tracks.uv.shape), np.nan)
+    assert fit_camera_poses(Tracks(scrambled.astype(np.float32), tracks.visible, tracks.start), K) is None
 
 
 @pytest.mark.parametrize("object_depth", [2.0, 7.5])

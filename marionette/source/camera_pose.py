@@ -7,23 +7,29 @@ of it unexplained. Here the background is a set of 3D points seen by a
 moving pinhole camera:
 
 1. Two views: frame 0 and the frame with the most parallax that still sees
-   half of frame 0's tracks. Their essential matrix (RANSAC), the relative
-   pose it gives, and the shared tracks triangulated.
-2. Every other frame in time order: PnP (RANSAC, then Levenberg-Marquardt on
-   the inliers) on its tracks that have a 3D point, starting from the
-   previous frame's pose. Tracks without a point are triangulated from their
-   seed frame and the current one once their rays part by ``min_angle_deg``,
-   so the chain goes on when frame 0's tracks have left the picture.
-3. Bundle adjustment of every pose but frame 0's and a subset of the points
-   (``scipy.optimize.least_squares``, Huber loss at the inlier threshold,
-   the Jacobian's sparsity given so finite differences need a handful of
-   evaluations).
+   half of frame 0's tracks. Their essential matrix (OpenCV's USAC with
+   local optimisation: plain RANSAC returns a minimal sample's model, off by
+   half a degree at 0.3 px of noise), the relative pose it gives, and the
+   shared tracks triangulated.
+2. Every other frame in time order: PnP (EPnP inside RANSAC, then
+   Levenberg-Marquardt on the inliers) on its tracks that have a 3D point.
+   Tracks without a point are triangulated from their seed frame and the
+   current one once their rays part by ``min_angle_deg``, so the chain goes
+   on when frame 0's tracks have left the picture.
+3. Bundle adjustment by resection and intersection (:func:`_refine`): every
+   track re-triangulated from all its agreeing frames, every pose refined
+   on its agreeing tracks, a few rounds.
 
 A single video fixes the translation only up to scale: it comes out in
 units of the two views' baseline, and the caller sets the scale
 (:func:`~marionette.source.camera_motion.estimate_camera_motion` puts the
 background next to the object at the object's depth). OpenCV's RANSAC is
 seeded, so results repeat.
+
+Known limits: a single plane (a bare wall) leaves the two-view geometry
+ambiguous, and on the DAVIS car-turn clip, which pans by hundreds of pixels,
+the chain loses the background after about 40 frames (docs/benchmarks/
+extract_real.md reports the agreement of both models).
 """
 
 from __future__ import annotations
@@ -74,6 +80,8 @@ def _triangulate(pose_a: np.ndarray, pose_b: np.ndarray, uv_a: np.ndarray, uv_b:
                  threshold_px: float, min_angle_deg: float) -> tuple[np.ndarray, np.ndarray]:
     """Points (N, 3) seen at pixels (N, 2) by two cameras (4, 4) → world points (N, 3) and which are good (N,):
     in front of both, reprojecting within the threshold, with rays that part by ``min_angle_deg``."""
+    if not len(uv_a):
+        return np.empty((0, 3)), np.zeros(0, bool)
     homogeneous = cv2.triangulatePoints(k @ pose_a[:3], k @ pose_b[:3], uv_a.T.astype(np.float64),
                                         uv_b.T.astype(np.float64))
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -192,6 +200,8 @@ def fit_camera_poses(tracks: Tracks, K: np.ndarray, *, threshold_px: float = 1.0
     poses[pair] = make_transform(rotation, translation.ravel())
     points = np.full((num_tracks, 3), np.nan)
     inl = common[mask.ravel() > 0]
+    if len(inl) < min_points:
+        return None
     found, good = _triangulate(poses[0], poses[pair], uv[0, inl], uv[pair, inl], k, 2 * threshold_px, min_angle_deg)
     if good.sum() < min_points:
         return None
