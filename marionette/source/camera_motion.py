@@ -220,7 +220,10 @@ def estimate_camera_motion(frames: np.ndarray, object_masks: np.ndarray, K: np.n
     rotation_only = dataclasses.replace(rotation_only, rotation_agreement=rotation_only.agreement)
     if object_depth is None or rotation_only.agreement >= full_below:
         return rotation_only
-    full = fit_camera_poses(tracks, k, threshold_px=threshold_px, seed=seed)
+    try:
+        full = fit_camera_poses(tracks, k, threshold_px=threshold_px, seed=seed)
+    except cv2.error:  # a degenerate background (OpenCV refuses it): the rotation stays
+        full = None
     scale = None if full is None else _scale(full, tracks, object_masks[0], k, object_depth)
     if scale is None:
         return dataclasses.replace(rotation_only, full_agreement=0.0)
