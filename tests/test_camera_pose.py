@@ -87,7 +87,7 @@ def test_the_scale_puts_the_background_beside_the_object_at_its_depth(object_dep
     fit = fit_camera_poses(tracks, K)
     mask = np.zeros((H, W), bool)
     mask[200:280, 280:360] = True
-    scale = _scale(fit, tracks, mask, K, object_depth)
+    scale = _scale(fit, tracks, mask, object_depth)
     travel = np.linalg.norm(invert_transform(fit.world_to_camera[-1])[:3, 3]) * scale
     true_travel = np.linalg.norm(invert_transform(truth[-1])[:3, 3])
     assert travel == pytest.approx(true_travel * object_depth / 4.0, rel=0.03)

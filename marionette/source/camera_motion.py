@@ -224,7 +224,7 @@ def estimate_camera_motion(frames: np.ndarray, object_masks: np.ndarray, K: np.n
         full = fit_camera_poses(tracks, k, threshold_px=threshold_px, seed=seed)
     except cv2.error:  # a degenerate background (OpenCV refuses it): the rotation stays
         full = None
-    scale = None if full is None else _scale(full, tracks, object_masks[0], k, object_depth)
+    scale = None if full is None else _scale(full, tracks, object_masks[0], object_depth)
     if scale is None:
         return dataclasses.replace(rotation_only, full_agreement=0.0)
     candidate = dataclasses.replace(rotation_only, world_to_camera=make_transform(
@@ -236,8 +236,7 @@ def estimate_camera_motion(frames: np.ndarray, object_masks: np.ndarray, K: np.n
     return dataclasses.replace(rotation_only, full_agreement=candidate.agreement)
 
 
-def _scale(full: CameraPoses, tracks: Tracks, object_mask: np.ndarray, k: np.ndarray, object_depth: float
-           ) -> float | None:
+def _scale(full: CameraPoses, tracks: Tracks, object_mask: np.ndarray, object_depth: float) -> float | None:
     """World units per unit of ``full``'s translation: the background points nearest the object in frame 0
     (the closest quarter of those seen there, by image distance to its mask) put at the object's depth;
     None when frame 0 sees no point in front of the camera."""
