@@ -7,8 +7,7 @@ the ray to the object's centre, and walls joining them along the outline.
 Depths are set at the cells' corners (the mean over the adjacent inside
 cells, so the outline is as smooth as the prior), and every cell is a
 bilinear patch between its corners; outline corners are pulled in toward
-their cells (``_INSET``), and when cells are wider than a pixel they go onto
-the photo's silhouette instead, so the outline is not the cells' staircase.
+their cells (``_INSET``).
 
 Each patch gets samples in proportion to its area: a patch is split into
 ``k_u x k_v`` sub-patches, ``k`` its 3D edge over the cell's own width (a
@@ -36,7 +35,6 @@ from typing import NamedTuple
 import cv2
 import numba
 import numpy as np
-from scipy import ndimage
 
 from ..camera import Camera
 from ..gaussians import Gaussians
@@ -179,25 +177,8 @@ class _Samples(NamedTuple):
     pixel_of: np.ndarray  # (N, 2)
 
 
-def _snap_to_outline(u: np.ndarray, v: np.ndarray, signed: np.ndarray, reach: float) -> tuple[np.ndarray, np.ndarray]:
-    """Pixel positions (K,) moved onto the silhouette, then ``_INSET / 2`` px inside it, as a one-pixel cell's
-    outline corner sits: two Newton steps on ``signed`` (H, W), the mask's signed distance (positive outside).
-    Positions farther than ``reach`` px from the silhouette, or that would move farther, stay."""
-    grad_v, grad_u = np.gradient(signed)
-    field = np.stack([signed, grad_u, grad_v], axis=2)
-    out_u, out_v = u.copy(), v.copy()
-    for _ in range(2):
-        d, gu, gv = _bilinear(field, out_u, out_v).T
-        norm = np.maximum(np.hypot(gu, gv), 1e-6)
-        step = d + 0.5 * _INSET
-        out_u, out_v = out_u - step * gu / norm, out_v - step * gv / norm
-    far = (np.abs(_bilinear(signed[..., None], u, v)[:, 0]) > reach) | (np.hypot(out_u - u, out_v - v) > reach)
-    return np.where(far, u, out_u), np.where(far, v, out_v)
-
-
-def _corner_grid(cells: np.ndarray, mid: np.ndarray, half: np.ndarray, camera: Camera, s: int,
-                 mask: np.ndarray) -> _Grid:
-    """Corner positions and points of the two sheets over the (Hc, Wc) cells; ``mask`` (H, W) the silhouette."""
+def _corner_grid(cells: np.ndarray, mid: np.ndarray, half: np.ndarray, camera: Camera, s: int) -> _Grid:
+    """Corner positions and points of the two sheets over the (Hc, Wc) cells."""
     hc, wc = cells.shape
     # Corner (i, j) sits between cells (i-1, j-1) and (i, j): means over the adjacent inside cells.
     pad = lambda a: np.pad(a, 1)  # noqa: E731
@@ -215,12 +196,6 @@ def _corner_grid(cells: np.ndarray, mid: np.ndarray, half: np.ndarray, camera: C
     for grid, centres in ((corner_u, cell_u), (corner_v, cell_v)):
         inner = corner_sum(pad(np.where(cells, centres, 0.0))) / np.maximum(count, 1)
         grid[outline] += _INSET * (inner[outline] - grid[outline])
-    if s > 1:
-        # Cells wider than a pixel would draw the outline as a staircase of their edges: their outline corners
-        # go onto the photo's silhouette instead (where it runs within a cell of them).
-        signed = ndimage.distance_transform_edt(~mask) - ndimage.distance_transform_edt(mask)
-        corner_u[outline], corner_v[outline] = _snap_to_outline(corner_u[outline], corner_v[outline],
-                                                                signed.astype(np.float64), float(s))
     # The front sheet on the pixels' rays; the back sheet behind it along the ray to the object's centre,
     # so the back is as large as the front rather than widened by perspective (a box's back face
     # projects smaller than its front, as it should).
@@ -485,7 +460,7 @@ def sample_surface(image: np.ndarray, mask: np.ndarray, cells: np.ndarray, mid: 
     parts = []
     for piece in np.unique(cells[cells > 0]):  # each piece closed on its own
         inside = cells == piece
-        grid = _corner_grid(inside, mid, half, camera, stride, mask)
+        grid = _corner_grid(inside, mid, half, camera, stride)
         patches = [_sheet(grid, grid.front, stride), _sheet(grid, grid.back, stride), *_walls(grid, inside, stride)]
         parts += [_emit(p, texture, c2w[:3, :3], reference) for p in patches]
     joined = _Samples(*(np.concatenate(column) for column in zip(*parts)))
