@@ -93,7 +93,13 @@ class CameraMotion:
     @property
     def agreement(self) -> float:
         """10th percentile over frames 1.. of the share of background tracks the chosen model explains."""
-        return float(np.percentile(self.inlier_ratio[1:], 10)) if len(self.inlier_ratio) > 1 else 1.0
+        return _agreement(self.inlier_ratio)
+
+
+def _agreement(inlier_ratio: np.ndarray) -> float:
+    """Per-frame shares of agreeing background tracks (T,) → their 10th percentile over frames 1.. (1 for one
+    frame)."""
+    return float(np.percentile(inlier_ratio[1:], 10)) if len(inlier_ratio) > 1 else 1.0
 
 
 def _kabsch(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
@@ -215,10 +221,10 @@ def estimate_camera_motion(frames: np.ndarray, object_masks: np.ndarray, K: np.n
                 residual[t] = focal * np.sqrt(np.mean(err ** 2))
         fresh = tracks.visible[t] & ~np.isfinite(world[:, 0])
         world[fresh] = bearings[t, fresh] @ rotations[t]  # R^T b, row-wise
+    agreement = _agreement(inlier_ratio)
     rotation_only = CameraMotion(make_transform(rotations, np.zeros(3)), False, inlier_ratio, residual,
-                                 displacement, tracks.num_tracks, "rotation")
-    rotation_only = dataclasses.replace(rotation_only, rotation_agreement=rotation_only.agreement)
-    if object_depth is None or rotation_only.agreement >= full_below:
+                                 displacement, tracks.num_tracks, "rotation", agreement)
+    if object_depth is None or agreement >= full_below:
         return rotation_only
     try:
         full = fit_camera_poses(tracks, k, threshold_px=threshold_px, seed=seed)
@@ -227,13 +233,12 @@ def estimate_camera_motion(frames: np.ndarray, object_masks: np.ndarray, K: np.n
     scale = None if full is None else _scale(full, tracks, object_masks[0], object_depth)
     if scale is None:
         return dataclasses.replace(rotation_only, full_agreement=0.0)
-    candidate = dataclasses.replace(rotation_only, world_to_camera=make_transform(
+    full_agreement = _agreement(full.inlier_ratio)
+    if full_agreement <= agreement:
+        return dataclasses.replace(rotation_only, full_agreement=full_agreement)
+    return dataclasses.replace(rotation_only, world_to_camera=make_transform(
         full.world_to_camera[:, :3, :3], scale * full.world_to_camera[:, :3, 3]), inlier_ratio=full.inlier_ratio,
-        residual_px=full.residual_px, model="rotation and translation")
-    candidate = dataclasses.replace(candidate, full_agreement=candidate.agreement)
-    if candidate.agreement > rotation_only.agreement:
-        return candidate
-    return dataclasses.replace(rotation_only, full_agreement=candidate.agreement)
+        residual_px=full.residual_px, model="rotation and translation", full_agreement=full_agreement)
 
 
 def _scale(full: CameraPoses, tracks: Tracks, object_mask: np.ndarray, object_depth: float) -> float | None:
