@@ -83,6 +83,8 @@ def run_one(case: str, plot: Path | None) -> dict:
         "yaw_range": float(vec[:, 1].max() - vec[:, 1].min()),
         "yaw_sign_changes": reversals(vec[:, 1]),
         "timings": prior.metadata["timings"], "camera": _camera(prior.metadata),
+        "failed": len(prior.metadata.get("failed_frames") or {}),
+        "recovered": len(prior.metadata.get("recovered_frames") or {}),
         "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
     }
 
@@ -120,12 +122,15 @@ def main() -> None:
              "frames downscaled to a long side of 960 (the DAVIS clips are 854x480 already). Each case runs in a "
              "fresh process; speed cases give the median of the runs. Angles in degrees: `final` is the rotation "
              "from frame 0 to the last frame, `yaw range` the spread of the rotation vector's vertical component "
-             "(camera y axis), `yaw turns` how often it changes direction.", "",
-             "| case | frames | parts | final angle | yaw range | yaw turns | camera | total s | peak MB | expected |",
-             "|---|---:|---:|---:|---:|---:|---|---:|---:|---|"]
+             "(camera y axis), `yaw turns` how often it changes direction; failed part-frames are interpolated, "
+             "recovered ones were lost by the tracks and found by alignment (`marionette.source.recover`).", "",
+             "| case | frames | parts | final angle | yaw range | yaw turns | failed / recovered part-frames "
+             "| camera | total s | peak MB | expected |",
+             "|---|---:|---:|---:|---:|---:|---:|---|---:|---:|---|"]
     for case, r, total, _ in rows:
         lines.append(f"| {case} | {r['frames']} | {r['parts']} | {r['final_angle']:.1f} | {r['yaw_range']:.1f} | "
-                     f"{r['yaw_sign_changes']} | {r['camera']} | {total:.1f} | {r['peak_mb']:.0f} | {CASES[case][4]} |")
+                     f"{r['yaw_sign_changes']} | {r['failed']} / {r['recovered']} | {r['camera']} | {total:.1f} | "
+                     f"{r['peak_mb']:.0f} | {CASES[case][4]} |")
     stages = sorted({k for _, r, _, _ in rows for k in r["timings"] if k != "total"})
     lines += ["", "Time per stage (seconds, the median run):", "",
               "| case | " + " | ".join(stages) + " | total |", "|---|" + "---:|" * (len(stages) + 1)]

@@ -189,7 +189,9 @@ def _prior_figures(prior) -> dict[str, Any]:
             "max_rotation_deg": [round(float(a), 2) for a in turned.max(axis=1)],
             "centre_path_in_radii": [round(float(d), 3) for d in path],
             "camera_motion": prior.metadata.get("camera_motion"),
-            "tracks": prior.metadata.get("num_tracks")}
+            "tracks": prior.metadata.get("num_tracks"),
+            "recovered_frames": len(prior.metadata.get("recovered_frames") or {}),
+            "failed_frames": len(prior.metadata.get("failed_frames") or {})}
 
 
 def _parsed(option: str, parse: Callable[[Any], Any], value: Any) -> Any:
@@ -259,6 +261,9 @@ MaxPixels = Annotated[int, typer.Option(
          " memory on long videos).")]
 Smooth = Annotated[float, typer.Option(help="Temporal smoothing of the poses (0: off).")]
 Plot = Annotated[Optional[Path], typer.Option(help="Also draw each part's rotation and translation to this PNG.")]
+RecoverFrames = Annotated[bool, typer.Option(
+    help="Find the pose of a frame the tracks lose (blur, a fast turn) by aligning a model of the object lifted "
+         "from a neighbouring frame, instead of interpolating it (one-part extraction).")]
 SourcePoint = Annotated[Optional[list[str]], typer.Option(
     help="A point X,Y on the object in the first source frame used, in its original pixels (repeatable): the "
          "masks follow that object instead of the automatic choice.")]
@@ -290,7 +295,8 @@ def _check_max_side(max_side: int) -> None:
 
 
 def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, stride: int, max_side: int,
-             max_pixels: int, smooth: float, plot, prompt: Prompt | None, save_masks: Path | None, session: _Session):
+             max_pixels: int, smooth: float, plot, prompt: Prompt | None, save_masks: Path | None, session: _Session,
+             recover_frames: bool = True):
     """Shared by ``extract`` and ``run``: check the options, extract, draw the plot."""
     parts_value = _parsed("--parts", parse_parts, parts)
     _check_max_side(max_side)
@@ -299,7 +305,7 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
     if not (np.isfinite(smooth) and 0 <= smooth <= 100):
         raise InputError(f"--smooth must be within 0..100, got {smooth}")
     _output_file(plot, ".png", "--plot")
-    options = ExtractOptions(parts=parts_value, smoothing=smooth)
+    options = ExtractOptions(parts=parts_value, smoothing=smooth, recover_frames=recover_frames)
     prior = pipeline.extract(source, masks=masks, depth=depth, focal=focal, max_side=max_side,
                              max_pixels=max_pixels, start=start, end=end, stride=stride, options=options,
                              prompt=prompt, reporter=session.reporter,
@@ -309,6 +315,11 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
         session.output("masks", save_masks)
     session.figures["source"] = _prior_figures(prior)
     session.reporter.message(_prior_line(prior))
+    recovered = prior.metadata.get("recovered_frames") or {}
+    if recovered:
+        seconds = prior.metadata.get("timings", {}).get("recover", 0.0)
+        session.reporter.detail(f"  {len(recovered)} part-frames the tracks lost were recovered by alignment "
+                                f"({seconds:.2f} s): {', '.join(recovered)}")
     if plot is not None:
         plot_prior(prior, session.stage(plot), title=Path(source).name)
         session.output("plot", plot)
@@ -321,14 +332,14 @@ def extract(source: Annotated[Path, typer.Argument(help="Video file or folder of
             start: Start = 0, end: End = None, stride: Stride = 1, max_side: MaxSide = pipeline.DEFAULT_MAX_SIDE,
             max_pixels: MaxPixels = DEFAULT_MAX_PIXELS, smooth: Smooth = 1.0, plot: Plot = None,
             source_point: SourcePoint = None, source_box: SourceBox = None, source_exclude: SourceExclude = None,
-            save_masks: SaveMasks = None, quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False,
-            config: Config = None) -> None:
+            save_masks: SaveMasks = None, recover_frames: RecoverFrames = True, quiet: Quiet = False,
+            verbose: Verbose = False, json_summary: Json = False, config: Config = None) -> None:
     """Extract the SpaT prior (per-part rigid motion) from a source video."""
     _output_file(output, ".npz", "--output")
     prompt = _prompt("source", source_point, source_box, source_exclude)
     with _session("extract", quiet, verbose, json_summary) as session:
         prior = _extract(source, masks, depth, focal, parts, start, end, stride, max_side, max_pixels, smooth, plot,
-                         prompt, save_masks, session)
+                         prompt, save_masks, session, recover_frames)
         write_prior(session.stage(output), prior)
         session.output("prior", output)
 
@@ -532,7 +543,8 @@ def run(source: Annotated[Path, typer.Argument(help="Video file or folder of fra
         start: Start = 0, end: End = None, stride: Stride = 1, max_side: MaxSide = pipeline.DEFAULT_MAX_SIDE,
         max_pixels: MaxPixels = DEFAULT_MAX_PIXELS, smooth: Smooth = 1.0, plot: Plot = None,
         source_point: SourcePoint = None, source_box: SourceBox = None, source_exclude: SourceExclude = None,
-        save_masks: SaveMasks = None, frames: Frames = None, speed: Speed = 1.0, loop: Loop = "hold",
+        save_masks: SaveMasks = None, recover_frames: RecoverFrames = True, frames: Frames = None,
+        speed: Speed = 1.0, loop: Loop = "hold",
         reverse: Reverse = False,
         rotation_scale: RotationScale = 1.0, translation_scale: TranslationScale = 1.0, fps: Fps = None,
         background: SceneBackground = "1,1,1", size: Size = None, camera: CameraMove = "static",
@@ -553,7 +565,7 @@ def run(source: Annotated[Path, typer.Argument(help="Video file or folder of fra
     _output_file(report, ".json", "--report")
     with _session("run", quiet, verbose, json_summary) as session:
         prior = _extract(source, masks, depth, focal, parts, start, end, stride, max_side, max_pixels, smooth, plot,
-                         prompt, save_masks, session)
+                         prompt, save_masks, session, recover_frames)
         trajectory, video = _transfer_and_render(prior, target, output, play, session)
         if side_by_side is not None:
             times = source_times(trajectory.num_frames, prior.num_frames - 1, speed=speed, loop=loop, reverse=reverse)

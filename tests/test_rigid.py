@@ -240,3 +240,69 @@ def test_carving_finds_the_centre_of_a_body_longer_than_its_prior():
     # Points within the prior's depth range hardly change it.
     inside = prior.centroid + 0.01 * np.random.default_rng(0).normal(size=(50, 3))
     assert np.allclose(carved_centroid(prior, masks, truth, frames, points=inside) - CENTRE, shallow, atol=0.01)
+
+
+# --- frames the tracks lose -------------------------------------------------------------------------------------
+
+
+def gap_tracks(truth: np.ndarray, lost: range, weak: int | None = None) -> Tracks:
+    """Tracks of the ellipsoid that all end before ``lost`` and new ones from its end on (none carries
+    across); with ``weak``, that many of the old tracks survive one frame into the gap."""
+    before, _ = ellipsoid_tracks(truth, seed=0)
+    after, _ = ellipsoid_tracks(truth, seed=1, reseeded=True)
+    cut_before = before.visible & (np.arange(len(truth))[:, None] < lost.start)
+    if weak:
+        cut_before[lost.start, :weak] = before.visible[lost.start, :weak]
+    late = np.arange(len(truth))[:, None] >= lost.stop
+    cut_after = after.visible & late & (np.cumsum(after.visible & late, axis=0) > 0)
+    keep = cut_after.any(axis=0)
+    start = cut_after[:, keep].argmax(axis=0)
+    visible = np.concatenate([cut_before, cut_after[:, keep]], axis=1)
+    uv = np.concatenate([before.uv, after.uv[:, keep]], axis=1)
+    return Tracks(uv=np.where(visible[..., None], uv, np.nan).astype(np.float32), visible=visible,
+                  start=np.concatenate([np.zeros(before.num_tracks, np.int64), start]))
+
+
+class Oracle:
+    """A ``recover`` that knows the true poses, and records what it was asked."""
+
+    def __init__(self, truth: np.ndarray) -> None:
+        self.truth, self.calls = truth, []
+
+    def __call__(self, t, source, source_pose, guess, uv, depth, replace=False):
+        self.calls.append((t, source, len(uv)))
+        return self.truth[t].copy(), f"oracle from {source}"
+
+
+def test_frames_the_tracks_lose_are_recovered_and_held():
+    truth = turning_poses(24, 60.0)
+    tracks = gap_tracks(truth, range(10, 13))
+    shape = ShapePrior.inflate(np.isfinite(ellipsoid_shape().front), K)
+    interpolated = fit_rigid(tracks, shape)
+    assert set(interpolated.failed_frames) == {10, 11, 12, 13}  # 13: only tracks born there, none lifted yet
+    oracle = Oracle(truth)
+    fit = fit_rigid(tracks, shape, recover=oracle)
+    assert fit.failed_frames == {}
+    assert set(fit.recovered_frames) == {10, 11, 12, 13}
+    assert "lifted tracks visible" in fit.recovered_frames[10] and "oracle from 9" in fit.recovered_frames[10]
+    # Each lost frame is aligned from the last strong one, with the fitted points seen there.
+    assert [(t, s) for t, s, _ in oracle.calls] == [(10, 9), (11, 9), (12, 9), (13, 9)]
+    assert all(n > 50 for _, _, n in oracle.calls)
+    # Held in the adjustment: the recovered rotations are the oracle's.
+    for t in range(10, 14):
+        assert rotation_angle_deg(fit.poses[t, :3, :3] @ truth[t, :3, :3].T) < 1e-6
+    # Tracks born in a recovered frame carry its pose on: the frames after the gap stay right.
+    after = slice(14, None)
+    assert median_rotation_error(fit.poses[after], truth[after]) < 0.5
+    assert median_rotation_error(fit.poses[after], truth[after]) < \
+        median_rotation_error(interpolated.poses[after], truth[after])
+
+
+def test_a_frame_where_few_tracks_survive_is_aligned_from_its_weak_pose():
+    truth = turning_poses(24, 60.0)
+    tracks = gap_tracks(truth, range(10, 12), weak=40)
+    shape = ShapePrior.inflate(np.isfinite(ellipsoid_shape().front), K)
+    fit = fit_rigid(tracks, shape, recover=Oracle(truth))
+    assert fit.recovered_frames[10].startswith("PnP kept only")
+    without = fit_rigid(tracks, shape, recover=None)
+    assert 10 not in without.failed_frames and 10 not in without.recovered_frames

@@ -44,8 +44,8 @@ from ..render.backward import render_with_grad
 from ._init import pose_gaussians
 from ._views import FitView, make_view
 
-__all__ = ["AlignOptions", "Alignment", "align_poses", "align_frame", "frame_loss", "move_parts", "twist_loss",
-           "twist_gradient"]
+__all__ = ["AlignOptions", "Alignment", "align_poses", "align_frame", "frame_pyramid", "frame_loss", "move_parts",
+           "twist_loss", "twist_gradient"]
 
 
 @dataclass(frozen=True)
@@ -239,8 +239,10 @@ def align_frame(gaussians: Gaussians, parts: np.ndarray, poses: np.ndarray, pyra
     return poses, before, after
 
 
-def _pyramid(image: np.ndarray, mask: np.ndarray, K: np.ndarray, scale: float, levels: int, t: int) -> list[FitView]:
-    """Views of one frame from coarsest to finest (the finest at ``scale``)."""
+def frame_pyramid(image: np.ndarray, mask: np.ndarray, K: np.ndarray, scale: float, levels: int,
+                  t: int) -> list[FitView]:
+    """Views of frame ``t`` (image (H, W, 3) uint8, mask (H, W) bool, intrinsics K (3, 3)) from coarsest to
+    finest, the finest at ``scale`` of the frame's resolution."""
     return [make_view(t, image, mask, K, scale / 2 ** level) for level in reversed(range(levels))]
 
 
@@ -287,7 +289,7 @@ def align_poses(gaussians: Gaussians, parts: np.ndarray, frames, masks, K: np.nd
     for i, t in enumerate(todo):
         mask = np.asarray(masks[t], bool)
         if mask.any():
-            pyramid = _pyramid(np.asarray(frames[t]), mask, K, scale, options.levels, t)
+            pyramid = frame_pyramid(np.asarray(frames[t]), mask, K, scale, options.levels, t)
             poses[:, t], before[t], after[t] = align_frame(gaussians, parts, poses[:, t], pyramid, movable,
                                                            max(radius, 1e-9), options)
             done.append(t)

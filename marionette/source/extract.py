@@ -42,6 +42,7 @@ from .camera_motion import estimate_camera_motion, to_world
 from .depth import DepthMaps, poses_from_depth
 from .foreground import auto_masks
 from .parts import OFF_OBJECT, OUTLIER, STATIC, segment_parts
+from .recover import FrameRecovery
 from .rigid import RigidOptions, ShapePrior, carved_centroid, fit_rigid
 from .smoothing import smooth_poses
 from .tracks import Tracks, _check_video, track
@@ -71,6 +72,11 @@ class ExtractOptions:
     camera_motion : bool
         Estimate and remove the camera's motion (a static camera is detected
         as such and left alone).
+    recover_frames : bool
+        Find the pose of a frame the tracks lose (blur, a fast turn) by
+        aligning a model of the object lifted from a neighbouring frame to it
+        (:mod:`~marionette.source.recover`), rather than interpolating it.
+        One-part fits only: a part's own pixels in a lost frame are not known.
     relief : float
         Half-thickness of the inflated shape prior relative to the mask's
         inscribed radius (1: a disc mask becomes a sphere).
@@ -93,6 +99,7 @@ class ExtractOptions:
     parts: int | str = 1
     smoothing: float = 1.0
     camera_motion: bool = True
+    recover_frames: bool = True
     relief: float = 1.0
     motion_threshold: float = 0.5
     rigid: RigidOptions = field(default_factory=RigidOptions)
@@ -108,6 +115,7 @@ class _Part:
     centre: np.ndarray  # (3,) at frame 0
     radius: float
     failed: dict[int, str]  # frames whose pose was interpolated, with the reason
+    recovered: dict[int, str]  # frames the tracks lost whose pose was found by alignment, with its note
 
 
 def _motion_px(tracks: Tracks, percentile: float = 90.0) -> float:
@@ -290,7 +298,7 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
                   f"{options.motion_threshold} px)")
         warnings.warn(f"{reason}: returning the identity prior", stacklevel=2)
         stages.timings["total"] = time.perf_counter() - start
-        metadata.update(failed_frames={}, no_motion=not few, motion_px=motion)
+        metadata.update(failed_frames={}, recovered_frames={}, no_motion=not few, motion_px=motion)
         extras.update(track_labels=np.zeros(tracks.num_tracks, np.int16),
                       labels=np.where(masks[0], 0, -1).astype(np.int16))
         prior = SpatPrior.identity(num_frames, centroid=whole.centroid, radius=whole.radius, metadata=metadata,
@@ -313,7 +321,7 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
         metadata["part_selection"] = {str(n): round(float(score), 3) for n, score in seg.scores.items()}
         metadata["part_selection_note"] = seg.selection
 
-    parts, rms = [], []
+    parts, rms, recover_seconds = [], [], 0.0
     with stages("poses", "fitting poses", len(groups) * num_frames) as progress:
         for i, g in enumerate(groups):
             pixels = pixel_labels == g
@@ -325,18 +333,27 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
                 progress(i * num_frames + round(done * num_frames / max(total, 1)), len(groups) * num_frames)
 
             failed: dict[int, str] = {}
+            recovered: dict[int, str] = {}
             points = None  # fitted 3D points whose depth the motion measured (they extend the carved volume)
             if g == STATIC or members.sum() < options.rigid.min_points:
                 poses = np.tile(np.eye(4), (num_frames, 1, 1))  # static, or too few tracks to tell
             elif depths is not None:
                 poses = poses_from_depth(_subset(tracks, members), depths, k)
             else:
-                fit = fit_rigid(_subset(tracks, members), shape, options=options.rigid, progress=step)
+                recover = (FrameRecovery(frames, masks, k, shape.centroid)
+                           if options.recover_frames and len(groups) == 1 else None)
+                fit = fit_rigid(_subset(tracks, members), shape, options=options.rigid, progress=step,
+                                recover=recover)
                 poses, failed, points = fit.poses, fit.failed_frames, fit.points[fit.triangulated]
+                recovered = fit.recovered_frames
+                recover_seconds += fit.timings["recover"]
                 rms.append(fit.reprojection_rms)
             trusted = np.array([t for t in range(num_frames) if t not in failed])
             centre = carved_centroid(shape, masks, poses, trusted, points=points)
-            parts.append(_Part(g, pixels, poses, centre, shape.radius, failed))
+            parts.append(_Part(g, pixels, poses, centre, shape.radius, failed, recovered))
+    if recover_seconds:  # its own line in the timings, out of the pose fit's
+        stages.timings["poses"] -= recover_seconds
+        stages.timings["recover"] = recover_seconds
 
     parts.sort(key=lambda p: -p.pixels.sum())
     poses = np.stack([p.poses for p in parts])  # (K, T, 4, 4) in camera coordinates
@@ -363,8 +380,9 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
         warnings.warn(f"pose estimation failed at {len(failed)} part-frames ({listed}{more}); "
                       "their poses are interpolated (see metadata 'failed_frames')", stacklevel=2)
     stages.timings["total"] = time.perf_counter() - start
-    metadata.update(failed_frames=failed, no_motion=False, motion_px=float(motion) if np.isfinite(motion) else None,
-                    num_parts=len(parts),
+    recovered = {f"{index}:{t}": note for index, part in enumerate(parts) for t, note in part.recovered.items()}
+    metadata.update(failed_frames=failed, recovered_frames=recovered, no_motion=False,
+                    motion_px=float(motion) if np.isfinite(motion) else None, num_parts=len(parts),
                     reprojection_rms_px=float(np.mean(rms)) if rms else None)
     return SpatPrior.from_poses(poses, centroids, np.array([p.radius for p in parts]), extras=extras,
                                 metadata=metadata, **common)

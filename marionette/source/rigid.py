@@ -41,10 +41,14 @@ the rigidity itself, the classical structure-from-motion route:
    (what the SpaT prior rotates parts about).
 
 Frames where the pose cannot be estimated (fewer than ``min_points`` tracks
-or inliers) are expected outcomes, not errors: they are interpolated between
-the nearest good frames (held after the last one) and reported with a reason
-in ``RigidFit.failed_frames``. Tracks born at such a frame are lifted with the
-pose predicted there, so that the frames after an occlusion can recover.
+or inliers) are expected outcomes, not errors. Given a ``recover`` function
+(:mod:`~marionette.source.recover` aligns a model of the body to the frame),
+their pose is found without tracks, as is the pose of a frame where only a
+few tracks survive; those frames are listed in ``RigidFit.recovered_frames``
+and held in the refinement. The others are interpolated between the nearest
+good frames (held after the last one) and reported with a reason in
+``RigidFit.failed_frames``. Tracks born at such a frame are lifted with the
+pose found or predicted there, so that the frames after it can go on.
 
 Poses map points of the body at frame 0, expressed in the camera frame of
 frame 0, to the camera frame of frame t (``X_t = R X_0 + t``); with a static
@@ -321,6 +325,10 @@ class RigidOptions:
         its reprojection error exceeds this many pixels, or 4 σ of the
         residuals if that is larger (LK tracks drift rather than jump, so what
         follows is suspect too), and the refinement runs again. 0 disables it.
+    weak_fraction : float
+        A PnP pose with fewer inliers than this fraction of the median of the
+        last 8 tracked frames' counts is weak (a blurred frame where few tracks
+        survive): with ``recover``, it is replaced by an alignment.
     depth_prior_weight : float
         A point whose depth moves by one radius away from its value before the
         refinement costs as much as this many pixels of reprojection error in
@@ -338,6 +346,7 @@ class RigidOptions:
     refine_tracks: int = 400
     refine_loss_scale: float = 1.0
     prune_threshold: float = 1.0
+    weak_fraction: float = 0.25
     depth_prior_weight: float = 0.1
     seed: int = 0
 
@@ -360,6 +369,9 @@ class RigidFit:
         the depth they were lifted at.
     failed_frames : dict[int, str]
         Frames whose pose was interpolated, with the reason.
+    recovered_frames : dict[int, str]
+        Frames the tracks lost, or kept too few of for a sound pose, whose
+        pose ``recover`` found instead, with why and how.
     reprojection_rms : float
         RMS reprojection error of the inliers, pixels.
     timings : dict[str, float]
@@ -371,6 +383,7 @@ class RigidFit:
     inliers: np.ndarray
     triangulated: np.ndarray
     failed_frames: dict[int, str] = field(default_factory=dict)
+    recovered_frames: dict[int, str] = field(default_factory=dict)
     reprojection_rms: float = float("nan")
     timings: dict[str, float] = field(default_factory=dict)
 
@@ -453,12 +466,13 @@ def _huber_irls(z: np.ndarray) -> np.ndarray:
 
 def _bundle_adjust(observed: np.ndarray, uv: np.ndarray, k: np.ndarray, poses: np.ndarray, points: np.ndarray,
                    directions: np.ndarray, free: np.ndarray, radius: float, options: RigidOptions,
-                   iterations: int = 30) -> tuple[np.ndarray, np.ndarray]:
+                   iterations: int = 30, held: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Jointly refine the poses of frames ``free`` (F,) and N points (N, 3) observed at ``uv`` (T, N, 2).
 
     Minimises the Huber cost (scale ``refine_loss_scale``) of the
     reprojection errors (pixels) of the observations marked in ``observed``
-    (T, N) bool at frame 0 and the free frames, plus the depth prior
+    (T, N) bool at frame 0, the free frames and the frames ``held`` (their
+    poses stay as they are), plus the depth prior
     ``depth_prior_weight * n·(X - X_lift) / radius`` per point, with ``n``
     (N, 3) the point's unit lifting ray in body coordinates. Solved by
     ``scipy.optimize.least_squares`` (trust region reflective) with the
@@ -474,6 +488,8 @@ def _bundle_adjust(observed: np.ndarray, uv: np.ndarray, k: np.ndarray, poses: n
     slot[free] = np.arange(f_count)
     pose_known = slot >= 0
     pose_known[0] = True
+    if held is not None:
+        pose_known[held] = True
     obs_t, obs_i = np.nonzero(observed & pose_known[:, None])  # (O,) frame and point
     obs_uv = uv[obs_t, obs_i].astype(np.float64)  # (O, 2)
     moving = np.nonzero(slot[obs_t] >= 0)[0]  # observations whose pose is a variable
@@ -622,8 +638,15 @@ def _reprojection_errors(k: np.ndarray, poses: np.ndarray, points: np.ndarray, u
     return np.where(np.isfinite(err) & (cam[..., 2] > 0), err, np.inf)
 
 
+#: ``recover(t, source, source_pose, guess, uv, depth, replace)`` → (pose or None, note): frame t's pose (4, 4)
+#: found without tracks, from the known pose (4, 4) of frame ``source``, a guess (4, 4), and the fitted points
+#: seen in frame ``source``: their pixels (n, 2) and camera depths (n,) there; ``replace``: the guess is a weak
+#: measured pose, to be replaced only by a clearly better one (see :mod:`.recover`).
+Recover = Callable[[int, int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, bool], tuple["np.ndarray | None", str]]
+
+
 def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = RigidOptions(),
-              progress: Callable[[int, int], None] | None = None) -> RigidFit:
+              progress: Callable[[int, int], None] | None = None, recover: Recover | None = None) -> RigidFit:
     """Estimate the per-frame pose of one rigid body from its tracks (see the module docstring).
 
     Parameters
@@ -635,6 +658,13 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
     options : RigidOptions
     progress : callable(done, total), optional
         Called after each frame with ``total = T`` (the last step is the refinement).
+    recover : callable, optional
+        Finds the pose of a frame the tracks lost, or whose PnP pose is weak
+        (see ``Recover`` and ``RigidOptions.weak_fraction``), from the last
+        strong frame: tried forward in time as the frame comes (so that the
+        tracks born there are lifted with the right pose), then backward from
+        the next strong frame for the frames it left failed. A recovered pose
+        is held in the refinement; the frames still failed are interpolated.
 
     Returns
     -------
@@ -648,7 +678,23 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
     directions = np.full((num_tracks, 3), np.nan)  # unit lifting ray of each point, body coordinates
     inliers = np.zeros((num_frames, num_tracks), bool)
     failed: dict[int, str] = {}
+    recovered: dict[int, str] = {}
     t_start = time.perf_counter()
+    t_recover = 0.0
+
+    def recover_pose(t: int, source: int, guess: np.ndarray, replace: bool = False) -> tuple[np.ndarray | None, str]:
+        """Frame t's pose (4, 4) aligned from frame ``source`` (a strong one) or None, and a note; ``replace``:
+        the guess is a (weak) measured pose."""
+        nonlocal t_recover
+        t0 = time.perf_counter()
+        # The fitted points seen in the source frame, where they reproject well: its model's relief.
+        seen = np.nonzero(tracks.visible[source] & np.isfinite(points[:, 0]))[0]
+        err = _reprojection_errors(k, poses[source][None], points[seen], uv[source, seen][None])[0]
+        seen = seen[err <= 2 * options.ransac_threshold]
+        found = recover(t, source, poses[source], guess, uv[source, seen],
+                        transform_points(poses[source], points[seen])[:, 2], replace)
+        t_recover += time.perf_counter() - t0
+        return found
 
     def lift(t: int, pose: np.ndarray) -> None:
         new = np.nonzero(tracks.visible[t] & np.isnan(points[:, 0]))[0]
@@ -670,7 +716,10 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
         """Bundle-adjust frames 0..upto, then fit the other lifted points to the new poses."""
         known = np.arange(num_frames) <= upto
         known[list(failed)] = False
-        free = np.nonzero(known)[0][1:]
+        # A recovered pose is held: few tracks see its frame, but those born there tie the frames after a
+        # gap in the tracks to the frames before it.
+        held = np.array([t for t in recovered if t <= upto], np.int64)
+        free = np.setdiff1d(np.nonzero(known)[0][1:], held)
         seen = tracks.visible & known[:, None]
         lifted = np.nonzero(np.isfinite(points[:, 0]) & (seen.sum(axis=0) >= 2))[0]
         if not len(free) or len(lifted) < options.min_points:
@@ -679,7 +728,7 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
         observed = seen[:, chosen]
         iterations = 30 if final else 10
         poses[:], points[chosen] = _bundle_adjust(observed, uv[:, chosen], k, poses, points[chosen],
-                                                  directions[chosen], free, shape.radius, options, iterations)
+                                                  directions[chosen], free, shape.radius, options, iterations, held)
         if final and options.prune_threshold > 0:
             # Tracks drift rather than jump: drop each one from its first frame past the gate on.
             err = _reprojection_errors(k, poses, points[chosen], uv[:, chosen])
@@ -687,7 +736,7 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
             gate = max(options.prune_threshold, 3.4 * float(np.median(err[observed])))
             observed &= np.cumsum(observed & (err > gate), axis=0) == 0
             poses[:], points[chosen] = _bundle_adjust(observed, uv[:, chosen], k, poses, points[chosen],
-                                                      directions[chosen], free, shape.radius, options)
+                                                      directions[chosen], free, shape.radius, options, held=held)
         rest = np.setdiff1d(lifted, chosen)
         points[rest] = _refine_points(seen[:, rest], uv[:, rest], k, poses, points[rest], options.refine_loss_scale)
 
@@ -695,11 +744,13 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
     inliers[0] = tracks.visible[0] & np.isfinite(points[:, 0])
     anchors = np.nonzero(inliers[0])[0]  # tracks lifted on the shape prior's frame-0 surface
     anchor_depths = points[anchors, 2].copy()
-    good = [0]
+    good = [0]  # frames with a pose: tracked or recovered
+    strong = [0]  # frames tracked with a usual number of PnP inliers
+    counts = [int(inliers[0].sum())]  # PnP inlier counts of the tracked frames
     t_refine = 0.0
     for t in range(1, num_frames):
         usable = np.nonzero(tracks.visible[t] & np.isfinite(points[:, 0]))[0]
-        guess = _extrapolate(poses, good, t)
+        guess = pose = _extrapolate(poses, good, t)
         if len(usable) < options.min_points:
             failed[t] = f"{len(usable)} lifted tracks visible, need {options.min_points}"
         else:
@@ -708,6 +759,25 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
                 failed[t] = reason
             else:
                 inliers[t, usable[inl]] = True
+                good.append(t)
+                count = int(inl.sum())
+                weak = count < options.weak_fraction * np.median(counts[-8:])
+                counts.append(count)  # weak ones too: a clip whose tracks thin out slowly is not all weak
+                if not weak:
+                    strong.append(t)
+                elif recover is not None:
+                    # A few surviving tracks (a blurred frame) give a poor pose: align the model from it.
+                    aligned, note = recover_pose(t, strong[-1], pose, replace=True)
+                    if aligned is not None:
+                        pose, recovered[t] = aligned, f"PnP kept only {count} inliers; {note}"
+        if t in failed and recover is not None:
+            # From the last strong frame, not the last with a pose: a frame the tracks lost or kept few of is
+            # often blurred, a poor model that the next blurred frame agrees with all the same.
+            aligned, note = recover_pose(t, strong[-1], guess)
+            if aligned is None:
+                failed[t] += f"; {note}"
+            else:
+                pose, recovered[t] = aligned, f"{failed.pop(t)}; {note}"
                 good.append(t)
         poses[t] = guess if t in failed else pose
         # Also at a failed frame (with the predicted pose): tracks born there
@@ -720,9 +790,21 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
             t_refine += time.perf_counter() - t0
         if progress is not None:
             progress(t, num_frames)
-    t_pose = time.perf_counter()
+    t_pose, recover_forward = time.perf_counter(), t_recover
     if options.refine:
         refine(num_frames - 1, final=True)
+    if recover is not None:
+        # Backward: each frame still failed from the next strong one, guessed from the two known after it.
+        for t in sorted(failed, reverse=True):
+            after = [u for u in range(t + 1, num_frames) if u not in failed][:2]
+            source = next((u for u in range(t + 1, num_frames) if u in strong), None)
+            if source is None:
+                continue
+            aligned, note = recover_pose(t, source, _extrapolate(poses, after[::-1], t))
+            if aligned is None:
+                failed[t] += f"; {note}"
+            else:
+                poses[t], recovered[t] = aligned, f"{failed.pop(t)}; {note}"
     _rescale(poses, points, anchors, anchor_depths)  # a no-op without refinement: PnP keeps the lifted scale
     if failed:
         poses = _fill_failed(poses, failed)
@@ -734,7 +816,9 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
     err = _reprojection_errors(k, poses, points, uv)
     inliers = tracks.visible & (err <= options.ransac_threshold)
     rms = float(np.sqrt(np.mean(err[inliers] ** 2))) if inliers.any() else float("nan")
-    timings = {"pose": t_pose - t_start - t_refine, "refine": time.perf_counter() - t_pose + t_refine}
+    timings = {"pose": t_pose - t_start - t_refine - recover_forward,
+               "refine": time.perf_counter() - t_pose + t_refine - (t_recover - recover_forward),
+               "recover": t_recover}
     return RigidFit(poses=poses, points=points, inliers=inliers, triangulated=_triangulated(poses, points, inliers),
-                    failed_frames=dict(sorted(failed.items())),
+                    failed_frames=dict(sorted(failed.items())), recovered_frames=dict(sorted(recovered.items())),
                     reprojection_rms=rms, timings=timings)
