@@ -131,14 +131,17 @@ def _bearings(uv: np.ndarray, k: np.ndarray) -> np.ndarray:
     return rays / np.linalg.norm(rays, axis=-1, keepdims=True)
 
 
-def _displacement(tracks: Tracks) -> float:
-    """Largest over frames of the median distance (px) the visible tracks moved since their seed frame."""
+def _displacement(tracks: Tracks, min_tracks: int) -> float:
+    """Largest over frames of the median distance (px) the visible tracks moved since their seed frame.
+
+    Frames with fewer than ``min_tracks`` visible tracks do not count: in a motion-blurred frame the few
+    tracks that survive slide along the smear, and a static camera would be taken for a moving one.
+    """
     seed_uv = tracks.uv[tracks.start, np.arange(tracks.num_tracks)]  # (M, 2)
     moved = np.linalg.norm(tracks.uv - seed_uv[None], axis=2)  # (T, M), NaN where not visible
     counts = np.isfinite(moved).sum(axis=1)
-    if not counts[1:].any():
-        return 0.0
-    return float(np.max([np.nanmedian(row) for row, n in zip(moved[1:], counts[1:]) if n]))
+    medians = [np.nanmedian(row) for row, n in zip(moved[1:], counts[1:]) if n >= max(min_tracks, 1)]
+    return float(max(medians, default=0.0))
 
 
 def estimate_camera_motion(frames: np.ndarray, object_masks: np.ndarray, K: np.ndarray, *, margin: int = 8,
@@ -172,7 +175,8 @@ def estimate_camera_motion(frames: np.ndarray, object_masks: np.ndarray, K: np.n
         The camera is static when the median background displacement stays
         below this many pixels in every frame.
     min_tracks : int
-        Fewest inlier tracks to trust a frame's rotation.
+        Fewest inlier tracks to trust a frame's rotation, and fewest visible
+        tracks for a frame to count in telling a static camera.
     iterations : int
         RANSAC hypotheses per frame.
     object_depth : float, optional
@@ -199,7 +203,7 @@ def estimate_camera_motion(frames: np.ndarray, object_masks: np.ndarray, K: np.n
         background[t] = cv2.dilate(mask.view(np.uint8), disc) == 0
     tracks = track(frames, background, spacing=spacing, min_eigen=min_eigen, refine=False)
     identity = np.tile(np.eye(4), (num_frames, 1, 1))
-    displacement = _displacement(tracks)
+    displacement = _displacement(tracks, min_tracks)
     if displacement < static_px:
         return CameraMotion(identity, True, np.ones(num_frames), np.zeros(num_frames), displacement,
                             tracks.num_tracks, "static")
