@@ -88,7 +88,7 @@ class FrameRecovery:
         self.frames, self.masks, self.K = frames, masks, np.asarray(K, np.float64)
         self.centroid = np.asarray(centroid, np.float64)
         self.options = options
-        self._models: dict[int, tuple[Gaussians, float]] = {}
+        self._models: dict[tuple[int, bytes], tuple[Gaussians, float]] = {}  # (frame, its pose) → model
 
     def _model(self, source: int, pose: np.ndarray, uv: np.ndarray,
                depth: np.ndarray) -> tuple[Gaussians, float] | None:
@@ -127,7 +127,7 @@ class FrameRecovery:
             return None, "the object is not in view"
         model = self._model(source, source_pose, uv, depth)
         if model is None:
-            return None, f"the object is not in view at frame {source}, the nearest with a pose"
+            return None, f"the object is not in view at frame {source}, the model's source"
         gaussians, radius = model
         labels = np.zeros(len(gaussians), np.int64)
         h, w = mask.shape
