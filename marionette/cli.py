@@ -263,7 +263,7 @@ Smooth = Annotated[float, typer.Option(help="Temporal smoothing of the poses (0:
 Plot = Annotated[Optional[Path], typer.Option(help="Also draw each part's rotation and translation to this PNG.")]
 RecoverFrames = Annotated[bool, typer.Option(
     help="Find the pose of a frame the tracks lose (blur, a fast turn) by aligning a model of the object lifted "
-         "from a neighbouring frame, instead of interpolating it (one-part extraction).")]
+         "from the last well-tracked frame, instead of interpolating it (one-part extraction).")]
 SourcePoint = Annotated[Optional[list[str]], typer.Option(
     help="A point X,Y on the object in the first source frame used, in its original pixels (repeatable): the "
          "masks follow that object instead of the automatic choice.")]

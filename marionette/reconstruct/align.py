@@ -45,7 +45,7 @@ from ._init import pose_gaussians
 from ._views import FitView, make_view
 
 __all__ = ["AlignOptions", "Alignment", "align_poses", "align_frame", "frame_pyramid", "frame_loss", "move_parts",
-           "twist_loss", "twist_gradient"]
+           "rms_radius", "twist_loss", "twist_gradient"]
 
 
 @dataclass(frozen=True)
@@ -110,6 +110,12 @@ class Alignment:
     loss_before: np.ndarray
     loss_after: np.ndarray
     frames: list = field(default_factory=list)
+
+
+def rms_radius(gaussians: Gaussians) -> float:
+    """RMS distance (float) of the Gaussians' means (N, 3) from their mean: the scale of a twist's translation."""
+    means = gaussians.means
+    return float(np.sqrt(np.mean(np.sum((means - means.mean(axis=0)) ** 2, axis=1))))
 
 
 def move_parts(poses: np.ndarray, x: np.ndarray, centres: np.ndarray, radius: float) -> np.ndarray:
@@ -282,7 +288,7 @@ def align_poses(gaussians: Gaussians, parts: np.ndarray, frames, masks, K: np.nd
     movable = np.ones(k_count, bool) if movable is None else np.asarray(movable, bool)
     h, w = np.asarray(masks[0]).shape
     scale = min(1.0, options.max_side / max(w, h))
-    radius = float(np.sqrt(np.mean(np.sum((gaussians.means - gaussians.means.mean(axis=0)) ** 2, axis=1))))
+    radius = rms_radius(gaussians)
     todo = list(range(1, t_count)) if frames_to_align is None else [int(t) for t in frames_to_align]
     before, after = np.full(t_count, np.nan), np.full(t_count, np.nan)
     done = []

@@ -74,7 +74,7 @@ class ExtractOptions:
         as such and left alone).
     recover_frames : bool
         Find the pose of a frame the tracks lose (blur, a fast turn) by
-        aligning a model of the object lifted from a neighbouring frame to it
+        aligning a model of the object lifted from the last well-tracked frame
         (:mod:`~marionette.source.recover`), rather than interpolating it.
         One-part fits only: a part's own pixels in a lost frame are not known.
     relief : float

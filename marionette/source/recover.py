@@ -39,7 +39,7 @@ from ..gaussians import Gaussians
 from ..geometry import invert_transform, transform_points
 from ..reconstruct._init import pose_gaussians
 from ..reconstruct._views import FitView
-from ..reconstruct.align import AlignOptions, align_frame, frame_pyramid
+from ..reconstruct.align import AlignOptions, align_frame, frame_pyramid, rms_radius
 from ..render import render
 from ..target.lift import LiftOptions, lift_image
 
@@ -110,8 +110,7 @@ class FrameRecovery:
                                 options=LiftOptions(depth=centre_depth, stride=stride))
             g = pose_gaussians(lifted.gaussians, np.zeros(len(lifted.gaussians), np.int64),
                                invert_transform(pose)[None])
-            radius = float(np.sqrt(np.mean(np.sum((g.means - g.means.mean(axis=0)) ** 2, axis=1))))
-            self._models[key] = (g, radius)
+            self._models[key] = (g, rms_radius(g))
         return self._models[key]
 
     def __call__(self, t: int, source: int, source_pose: np.ndarray, guess: np.ndarray, uv: np.ndarray,
