@@ -63,12 +63,10 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-from scipy import sparse
-from scipy.optimize import least_squares
 from scipy.spatial import cKDTree
 
-from ..geometry import (axis_angle_to_matrix, invert_transform, make_transform, se3_interpolate, skew,
-                        so3_left_jacobian, transform_points)
+from ..geometry import invert_transform, make_transform, se3_interpolate, transform_points
+from .bundle import bundle_adjust
 from .tracks import Tracks
 
 __all__ = ["ShapePrior", "RigidOptions", "RigidFit", "fit_rigid", "carved_centroid"]
@@ -451,105 +449,20 @@ def _huber_weights(norms: np.ndarray, scale: float) -> tuple[np.ndarray, float]:
     return np.where(big, scale / np.maximum(norms, 1e-300), 1.0), float(cost)
 
 
-def _huber_irls(z: np.ndarray) -> np.ndarray:
-    """Huber loss for ``least_squares``: ρ, ρ′ and ρ″ (3, m) of squared scaled residuals z (m,).
-
-    ρ″ is reported as 0, so the solver weights Jacobian rows by √ρ′ as IRLS
-    does; with the true ρ″ its curvature correction (Triggs et al. 1999)
-    zeroes the rows of residuals in the linear zone, which stalls it when a
-    refinement starts far off.
-    """
-    big = z > 1
-    root = np.sqrt(np.where(big, z, 1.0))
-    return np.stack([np.where(big, 2 * root - 1, z), np.where(big, 1 / root, 1.0), np.zeros_like(z)])
-
-
 def _bundle_adjust(observed: np.ndarray, uv: np.ndarray, k: np.ndarray, poses: np.ndarray, points: np.ndarray,
                    directions: np.ndarray, free: np.ndarray, radius: float, options: RigidOptions,
                    iterations: int = 30, held: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Jointly refine the poses of frames ``free`` (F,) and N points (N, 3) observed at ``uv`` (T, N, 2).
 
-    Minimises the Huber cost (scale ``refine_loss_scale``) of the
-    reprojection errors (pixels) of the observations marked in ``observed``
-    (T, N) bool at frame 0, the free frames and the frames ``held`` (their
-    poses stay as they are), plus the depth prior
-    ``depth_prior_weight * n·(X - X_lift) / radius`` per point, with ``n``
-    (N, 3) the point's unit lifting ray in body coordinates. Solved by
-    ``scipy.optimize.least_squares`` (trust region reflective) with the
-    analytic Jacobian as a sparse matrix: each residual depends on one pose
-    and one point only. Poses are parametrised as ``R = exp(ω) R₀,
-    t = t₀ + δt`` about their starting values; ``iterations`` bounds the
-    number of cost evaluations.
-
+    :func:`~marionette.source.bundle.bundle_adjust` with the options' Huber
+    scale (``refine_loss_scale``) and the depth prior
+    ``depth_prior_weight * n·(X - X_lift) / radius`` per point, ``n`` (N, 3)
+    the point's unit lifting ray in body coordinates; frame 0 and the frames
+    ``held`` keep their poses, ``iterations`` bounds the cost evaluations.
     Returns refined poses (T, 4, 4) (other frames unchanged) and points (N, 3).
     """
-    f_count, n_count = len(free), len(points)
-    slot = np.full(len(poses), -1)
-    slot[free] = np.arange(f_count)
-    pose_known = slot >= 0
-    pose_known[0] = True
-    if held is not None:
-        pose_known[held] = True
-    obs_t, obs_i = np.nonzero(observed & pose_known[:, None])  # (O,) frame and point
-    obs_uv = uv[obs_t, obs_i].astype(np.float64)  # (O, 2)
-    moving = np.nonzero(slot[obs_t] >= 0)[0]  # observations whose pose is a variable
-    obs_slot = slot[obs_t[moving]]
-    fxy = np.array([k[0, 0], k[1, 1]])
-    prior_w = options.depth_prior_weight / radius
-    rot0, trans0 = poses[:, :3, :3], poses[:, :3, 3]
-
-    # Sparsity of the Jacobian: rows (2 per observation, then one per point) × columns (6 per free pose, 3 per point).
-    o_count = len(obs_t)
-    rows = np.concatenate([
-        np.repeat(2 * moving[:, None] + np.arange(2), 6, axis=1).ravel(),
-        np.repeat(2 * np.arange(o_count)[:, None] + np.arange(2), 3, axis=1).ravel(),
-        np.repeat(2 * o_count + np.arange(n_count), 3)])
-    point_cols = 6 * f_count + 3 * np.arange(n_count)[:, None] + np.arange(3)  # (N, 3)
-    cols = np.concatenate([
-        np.tile(6 * obs_slot[:, None] + np.arange(6), 2).ravel(),
-        np.tile(point_cols[obs_i], 2).ravel(),
-        point_cols.ravel()])
-    shape = (2 * o_count + n_count, 6 * f_count + 3 * n_count)
-
-    def unpack(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        omega = x[:6 * f_count].reshape(f_count, 6)
-        rot, trans = rot0.copy(), trans0.copy()
-        rot[free] = axis_angle_to_matrix(omega[:, :3]) @ rot0[free]
-        trans[free] += omega[:, 3:]
-        pts = x[6 * f_count:].reshape(n_count, 3)
-        return rot, trans, pts, omega[:, :3]
-
-    def residuals(x: np.ndarray) -> np.ndarray:
-        rot, trans, pts, _ = unpack(x)
-        cam = np.einsum("oij,oj->oi", rot[obs_t], pts[obs_i]) + trans[obs_t]
-        prior = prior_w * np.einsum("ni,ni->n", directions, pts - points)
-        return np.concatenate([(_project(k, cam) - obs_uv).ravel(), prior])
-
-    def jacobian(x: np.ndarray) -> sparse.csr_matrix:
-        rot, trans, pts, omega = unpack(x)
-        rx = np.einsum("oij,oj->oi", rot[obs_t], pts[obs_i])  # (O, 3)
-        cam = rx + trans[obs_t]
-        z = cam[:, 2]
-        j_proj = np.zeros((o_count, 2, 3))  # d pixel / d camera point
-        j_proj[:, 0, 0], j_proj[:, 1, 1] = fxy[0] / z, fxy[1] / z
-        j_proj[:, :, 2] = -fxy * cam[:, :2] / z[:, None] ** 2
-        j_proj_moving = j_proj[moving]
-        # d(exp(ω) R₀ X)/dω = -[R X]ₓ J_l(ω).
-        j_rot = -j_proj_moving @ skew(rx[moving]) @ so3_left_jacobian(omega)[obs_slot]
-        values = np.concatenate([
-            np.concatenate([j_rot, j_proj_moving], axis=2).ravel(),
-            (j_proj @ rot[obs_t]).ravel(),
-            prior_w * directions.ravel()])
-        return sparse.csr_matrix((values, (rows, cols)), shape=shape)
-
-    # x_scale="jac" preconditions LSMR by the column norms; its tolerance of 1e-5 is as loose as keeps the
-    # steps (and the poses on real footage) those of an exact solve, tighter only costs time.
-    x0 = np.concatenate([np.zeros(6 * f_count), points.ravel()])
-    result = least_squares(residuals, x0, jac=jacobian, method="trf", loss=_huber_irls,
-                           f_scale=options.refine_loss_scale, max_nfev=iterations, tr_solver="lsmr",
-                           tr_options={"atol": 1e-5, "btol": 1e-5}, ftol=1e-6, x_scale="jac")
-    rot, trans, pts, _ = unpack(result.x)
-    return make_transform(rot, trans), pts.copy()
+    return bundle_adjust(observed, uv, k, poses, points, directions, free, options.depth_prior_weight / radius,
+                         options.refine_loss_scale, iterations, held)
 
 
 def _choose_tracks(visible: np.ndarray, count: int, seed: int, ids: np.ndarray, per_frame: int = 30) -> np.ndarray:
