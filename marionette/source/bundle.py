@@ -14,6 +14,7 @@ least squares (weights ``ρ′`` per residual, curvature term dropped).
 from __future__ import annotations
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from ..geometry import axis_angle_to_matrix, make_transform, skew
 
@@ -120,28 +121,31 @@ def bundle_adjust(observed: np.ndarray, uv: np.ndarray, k: np.ndarray, poses: np
         d_x = (v_inv @ (-g_x - (d_p.ravel() @ w_mat).reshape(n_count, 3))[..., None])[..., 0]
         return d_p, d_x
 
-    rot, trans, pts = poses[:, :3, :3].copy(), poses[:, :3, 3].copy(), start.copy()
-    rx, cam, reproj, prior, current = evaluate(rot, trans, pts)
-    evaluations, damping = 1, 1e-3
-    while evaluations < max_evaluations and f_count and np.isfinite(current):
-        system = normal_equations(rot, rx, cam, reproj, prior)
-        while evaluations < max_evaluations:
-            d_p, d_x = step(*system, damping)
-            new_rot, new_trans = rot.copy(), trans.copy()
-            new_rot[free] = axis_angle_to_matrix(d_p[:, :3]) @ rot[free]
-            new_trans[free] += d_p[:, 3:]
-            new_pts = pts + d_x
-            trial = evaluate(new_rot, new_trans, new_pts)
-            evaluations += 1
-            if trial[-1] < current:
+    # One BLAS thread: a threaded matrix product or solve splits its sums differently with the thread count,
+    # and a result that changes in its last bits can change a chaotic clip's poses by degrees.
+    with threadpool_limits(limits=1, user_api="blas"):
+        rot, trans, pts = poses[:, :3, :3].copy(), poses[:, :3, 3].copy(), start.copy()
+        rx, cam, reproj, prior, current = evaluate(rot, trans, pts)
+        evaluations, damping = 1, 1e-3
+        while evaluations < max_evaluations and f_count and np.isfinite(current):
+            system = normal_equations(rot, rx, cam, reproj, prior)
+            while evaluations < max_evaluations:
+                d_p, d_x = step(*system, damping)
+                new_rot, new_trans = rot.copy(), trans.copy()
+                new_rot[free] = axis_angle_to_matrix(d_p[:, :3]) @ rot[free]
+                new_trans[free] += d_p[:, 3:]
+                new_pts = pts + d_x
+                trial = evaluate(new_rot, new_trans, new_pts)
+                evaluations += 1
+                if trial[-1] < current:
+                    break
+                damping *= 10.0
+            else:
                 break
-            damping *= 10.0
-        else:
-            break
-        gain = current - trial[-1]
-        rot, trans, pts = new_rot, new_trans, new_pts
-        rx, cam, reproj, prior, current = trial
-        damping = max(damping * 0.3, 1e-9)
-        if gain < ftol * current:
-            break
+            gain = current - trial[-1]
+            rot, trans, pts = new_rot, new_trans, new_pts
+            rx, cam, reproj, prior, current = trial
+            damping = max(damping * 0.3, 1e-9)
+            if gain < ftol * current:
+                break
     return make_transform(rot, trans), pts
