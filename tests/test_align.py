@@ -12,7 +12,7 @@ from marionette.errors import InputError
 from marionette.gaussians import Gaussians
 from marionette.geometry import axis_angle_to_matrix, invert_transform, make_transform, rotation_angle_deg
 from marionette.reconstruct._init import pose_gaussians
-from marionette.reconstruct.align import AlignOptions, align_poses, move_parts, twist_gradient
+from marionette.reconstruct.align import AlignOptions, align_poses, move_parts, twist_gradient, twist_loss
 from marionette.render import render
 
 W, H = 192, 160
@@ -184,3 +184,30 @@ def test_bad_inputs_raise():
         align_poses(g, parts + 1, frames, masks, K, np.tile(np.eye(4), (1, 2, 1, 1)))
     with pytest.raises(InputError):
         align_poses(g, parts, frames, masks, K, np.tile(np.eye(4), (1, 2, 1, 1)), options=AlignOptions(levels=0))
+
+
+def test_line_searches_stay_within_the_evaluation_budget(monkeypatch):
+    """Where the loss is rough (a model that barely overlaps the frame) its gradient misleads the line
+    searches, which then take up to 20 evaluations per iteration; each stage of the coarse-to-fine alignment
+    still renders at most 3 × iterations times. A random gradient stands in for the misleading one."""
+    import marionette.reconstruct.align as align
+
+    g, parts = textured_object()
+    rng = np.random.default_rng(4)
+    calls = []
+
+    def misleading(*args, **kwargs):
+        calls.append(1)
+        loss, grad = twist_loss(*args, **kwargs)
+        return loss, rng.normal(size=grad.shape)
+
+    monkeypatch.setattr(align, "twist_loss", misleading)
+    options = AlignOptions(max_side=W, iterations=4)
+    truth = turn([0.3, 1, 0.2], 25)[None]
+    start = turn([1, -0.5, 0.3], 3) @ truth
+    frame, mask = frame_of(g, parts, truth)
+    frames = np.stack([frame_of(g, parts, np.eye(4)[None])[0], frame])
+    poses = np.stack([np.eye(4)[None], start], axis=1)
+    align_poses(g, parts, frames, np.stack([np.ones((H, W), bool), mask]), K, poses, options=options)
+    stages = options.levels + np.isfinite(options.silhouette_scale)
+    assert 0 < len(calls) <= stages * 3 * options.iterations

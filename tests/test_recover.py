@@ -57,6 +57,19 @@ def test_a_frame_turned_away_from_its_model_is_aligned_closer_than_its_guess(sce
     assert _rotation_error(pose, truth[16]) < 2.0
 
 
+def test_a_rough_relief_falls_back_to_the_silhouettes(scene):
+    """Depths scattered by a badly fitted frame would raise walls of many times the body's area (a 210x blow-up
+    on the backpack clip, 40 s per alignment): the model takes the silhouette's relief and keeps its size."""
+    recovery = FrameRecovery(scene.frames, scene.masks, scene.camera.K, scene.centroids()[0, 0])
+    uv, depth = _true_depths(scene, 11)
+    smooth = len(recovery._model(11, scene.poses[0, 11], uv, depth)[0])
+    rough = depth * np.random.default_rng(1).choice([0.5, 2.0], len(depth))
+    assert len(FrameRecovery(scene.frames, scene.masks, scene.camera.K, scene.centroids()[0, 0],
+                             RecoverOptions(max_area=1e9))._model(11, scene.poses[0, 11], uv, rough)[0]) > 3 * smooth
+    cells = scene.masks[11].sum() / max(1, round(np.sqrt(scene.masks[11].sum() / RecoverOptions().cells))) ** 2
+    assert len(recovery._model(11, scene.poses[0, 11], uv, rough)[0]) <= RecoverOptions().max_area * cells
+
+
 def test_an_object_out_of_view_is_not_recovered(scene):
     masks = scene.masks.copy()
     masks[5] = False

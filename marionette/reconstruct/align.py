@@ -61,7 +61,7 @@ class AlignOptions:
         bias the answer: at a quarter of the resolution the Gaussians are
         below a pixel and the rasterizer's 0.3 px low-pass fattens thin parts.
     iterations : int
-        L-BFGS iterations per level.
+        L-BFGS iterations per level, and at most three times as many loss evaluations.
     mask_weight : float
         ``λ_mask`` of the silhouette term.
     charbonnier : float
@@ -193,6 +193,10 @@ def twist_gradient(g: np.ndarray, x: np.ndarray, radius: float) -> np.ndarray:
     return grad
 
 
+class _OutOfEvaluations(Exception):
+    """An alignment stage used its budget of loss evaluations (3 per L-BFGS iteration)."""
+
+
 def align_frame(gaussians: Gaussians, parts: np.ndarray, poses: np.ndarray, pyramid: Sequence[FitView],
                 movable: np.ndarray, radius: float, options: AlignOptions) -> tuple[np.ndarray, float, float]:
     """Refine one frame's poses (K, 4, 4) of the parts marked ``movable`` (K,) bool, coarse to fine.
@@ -219,10 +223,15 @@ def align_frame(gaussians: Gaussians, parts: np.ndarray, poses: np.ndarray, pyra
     # (occluders, accuracy).
     stages = [(view, np.inf) for view in pyramid] + ([(pyramid[-1], fine)] if np.isfinite(fine) else [])
     for view, scale in stages:
-        best = {"loss": np.inf, "x": np.zeros(6 * len(free))}
+        best = {"loss": np.inf, "x": np.zeros(6 * len(free)), "evaluations": 0}
 
         def objective(flat: np.ndarray, view: FitView = view, best: dict = best,
                       scale: float = scale) -> tuple[float, np.ndarray]:
+            # Where the loss is rough (a model that barely overlaps the frame) its gradient misleads the
+            # line searches, which then take up to 20 evaluations, each a render and its backward pass.
+            if best["evaluations"] == 3 * options.iterations:
+                raise _OutOfEvaluations
+            best["evaluations"] += 1
             x = np.zeros((k_count, 6))
             x[free] = flat.reshape(-1, 6)
             loss, grad = twist_loss(gaussians, parts, poses, x, centres, radius, view, options, scale)
@@ -233,8 +242,11 @@ def align_frame(gaussians: Gaussians, parts: np.ndarray, poses: np.ndarray, pyra
         # A box on the twist keeps a line search from leaping to a far pose that happens to score lower
         # (an occluder can make one): a refinement starts within tens of degrees of the answer.
         bounds = [(-options.max_step, options.max_step)] * (6 * len(free))
-        minimize(objective, np.zeros(6 * len(free)), jac=True, method="L-BFGS-B", bounds=bounds,
-                 options={"maxiter": options.iterations, "ftol": 1e-10, "gtol": 1e-9})
+        try:
+            minimize(objective, np.zeros(6 * len(free)), jac=True, method="L-BFGS-B", bounds=bounds,
+                     options={"maxiter": options.iterations, "ftol": 1e-10, "gtol": 1e-9})
+        except _OutOfEvaluations:
+            pass  # the best twist seen is kept, as after a normal stop
         x = np.zeros((k_count, 6))
         x[free] = best["x"].reshape(-1, 6)
         poses = move_parts(poses, x, centres, radius)

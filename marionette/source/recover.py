@@ -54,6 +54,9 @@ class RecoverOptions:
     ----------
     cells : int
         About this many lift cells on the model (its stride follows the mask's area).
+    max_area : float
+        A relief from the fitted points is kept while the lifted surface holds at most this many times the
+        mask's area (front, back and walls of a smooth body hold 2-6 times it).
     min_iou : float
         Silhouette IoU between the aligned model and the frame's mask below which the frame stays failed.
         Synthetic recoveries reach 0.94-0.99; on the hand-held backpack clip with automatic masks, weak
@@ -66,6 +69,7 @@ class RecoverOptions:
     """
 
     cells: int = 2500
+    max_area: float = 8.0
     min_iou: float = 0.9
     min_gain: float = 0.02
     align: AlignOptions = AlignOptions(iterations=8)
@@ -105,9 +109,13 @@ class FrameRecovery:
             h, w = mask.shape
             centre_depth = float(transform_points(pose, self.centroid[None])[0, 2])
             stride = max(1, int(round(np.sqrt(mask.sum() / self.options.cells))))
-            lifted = lift_image(np.asarray(self.frames[source]), mask=mask, camera=Camera(self.K, np.eye(4), w, h),
-                                depth_map=_depth_map(mask, uv, depth),
-                                options=LiftOptions(depth=centre_depth, stride=stride))
+            camera, lift = Camera(self.K, np.eye(4), w, h), LiftOptions(depth=centre_depth, stride=stride)
+            image = np.asarray(self.frames[source])
+            lifted = lift_image(image, mask=mask, camera=camera, depth_map=_depth_map(mask, uv, depth), options=lift)
+            if len(lifted.gaussians) > self.options.max_area * mask.sum() / stride ** 2:
+                # Points fitted badly (after a gap) make a rough relief whose walls hold many times the
+                # body's area, in Gaussians to render at every step: take the silhouette's relief instead.
+                lifted = lift_image(image, mask=mask, camera=camera, options=lift)
             g = pose_gaussians(lifted.gaussians, np.zeros(len(lifted.gaussians), np.int64),
                                invert_transform(pose)[None])
             self._models[key] = (g, rms_radius(g))
