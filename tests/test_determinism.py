@@ -30,10 +30,20 @@ ONE_THREAD = {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_TH
               "PYTHONHASHSEED": "123"}
 
 
-def cli(*args: str, env: dict[str, str] | None = None) -> None:
-    proc = subprocess.run([sys.executable, "-m", "marionette.cli", *map(str, args), "-q"], check=False,
-                          capture_output=True, text=True, env={**os.environ, **(env or {})}, timeout=300)
-    assert proc.returncode == 0, proc.stderr
+def cli(*runs: tuple[list, dict[str, str] | None]) -> None:
+    """Run each ``(arguments, environment)`` as a ``marionette`` command in its own process, all at once
+    (they are independent, and the machine has cores to spare while one waits on I/O or the GIL)."""
+    procs = [subprocess.Popen([sys.executable, "-m", "marionette.cli", *map(str, args), "-q"],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                              env={**os.environ, **(env or {})}) for args, env in runs]
+    try:
+        for proc in procs:
+            _, err = proc.communicate(timeout=300)
+            assert proc.returncode == 0, err
+    finally:
+        for proc in procs:
+            proc.kill()
+            proc.communicate()
 
 
 @pytest.fixture(scope="module")
@@ -58,11 +68,12 @@ def without_timings(metadata: str) -> dict:
 
 
 def test_extract_and_transfer_repeat_exactly_in_fresh_processes(clip, tmp_path):
-    for run, env in ((1, None), (2, ONE_THREAD)):
-        cli("extract", clip / "frames", "--masks", clip / "masks", "--parts", "2", "-o", tmp_path / f"p{run}.npz",
-            env=env)
-        # both renders from the first prior, so a difference in them is the renderer's own
-        cli("transfer", tmp_path / "p1.npz", clip / "target.png", "-o", tmp_path / f"frames{run}", env=env)
+    envs = {1: None, 2: ONE_THREAD}
+    cli(*((["extract", clip / "frames", "--masks", clip / "masks", "--parts", "2", "-o", tmp_path / f"p{run}.npz"],
+           env) for run, env in envs.items()))
+    # both renders from the first prior, so a difference in them is the renderer's own
+    cli(*((["transfer", tmp_path / "p1.npz", clip / "target.png", "-o", tmp_path / f"frames{run}"], env)
+          for run, env in envs.items()))
 
     with np.load(tmp_path / "p1.npz") as a, np.load(tmp_path / "p2.npz") as b:
         assert a.files == b.files
@@ -155,10 +166,11 @@ def test_parts_auto_does_not_follow_the_blas_kernel_or_thread_count(motion, fram
     (tmp_path / "masks").mkdir()
     for i, m in enumerate(scene.masks):
         cv2.imwrite(str(tmp_path / "masks" / f"{i:05d}.png"), m.astype(np.uint8) * 255)
+    outs = [tmp_path / f"prior{run}.npz" for run in range(len(KERNELS))]
+    cli(*((["extract", tmp_path / "frames", "--masks", tmp_path / "masks", "--parts", "auto", "-o", out], env)
+          for out, env in zip(outs, KERNELS)))
     priors = []
-    for run, env in enumerate(KERNELS):
-        out = tmp_path / f"prior{run}.npz"
-        cli("extract", tmp_path / "frames", "--masks", tmp_path / "masks", "--parts", "auto", "-o", out, env=env)
+    for out in outs:
         with np.load(out) as f:
             priors.append((f["poses"], json.loads(f["metadata"].item())))
     poses, meta = priors[0]
