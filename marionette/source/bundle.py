@@ -5,7 +5,7 @@ Each reprojection residual depends on one pose (6 parameters) and one point
 per point ``V`` (3 × 3) and per observation ``W`` (6 × 3). Eliminating the
 points leaves the reduced camera system ``S = U - W V⁻¹ Wᵀ`` (6F × 6F, dense),
 solved exactly at every step (Triggs et al., "Bundle Adjustment — A Modern
-Synthesis", 2000, §6.1). A handful of exact steps replace the hundreds of
+Synthesis", 1999, §6.1). A handful of exact steps replace the hundreds of
 iterative (LSMR) inner products a generic sparse trust-region solver spends on
 the same problem. The robust loss is Huber, applied by iteratively reweighted
 least squares (weights ``ρ′`` per residual, curvature term dropped).
