@@ -478,7 +478,9 @@ def _align_affine_kernel(ref, gx_img, gy_img, ref_mask, cur, p_ref, p_init, a_in
             for j in range(i):
                 hess[j, i] = hess[i, j]
         out_p[n, 0], out_p[n, 1] = p_init[n, 0], p_init[n, 1]
-        out_a[n] = a_init[n]
+        # Element by element: an array-to-array store compiles numba's shape-error formatting (~7 s).
+        out_a[n, 0, 0], out_a[n, 0, 1], out_a[n, 1, 0], out_a[n, 1, 1] = (a_init[n, 0, 0], a_init[n, 0, 1],
+                                                                          a_init[n, 1, 0], a_init[n, 1, 1])
         out_res[n] = np.inf
         if hess[4, 4] * hess[5, 5] - hess[4, 5] ** 2 <= 1e-6 * (hess[4, 4] + hess[5, 5]) ** 2 + 1e-12:
             continue

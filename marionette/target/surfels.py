@@ -399,9 +399,10 @@ def _emit_kernel(corners, uv, fold, split_a, split_b, level, overlap, pixel, fir
                 for c in range(3):
                     means[n, c] = (w00 * corners[p, 0, c] + w10 * corners[p, 1, c] + w01 * corners[p, 2, c]
                                    + w11 * corners[p, 3, c])
-                quats[n] = quat
+                # Element by element: an array-to-array store compiles numba's shape-error formatting (~7 s).
+                quats[n, 0], quats[n, 1], quats[n, 2], quats[n, 3] = quat[0], quat[1], quat[2], quat[3]
                 scales[n, 0], scales[n, 1], scales[n, 2] = tangent_a, tangent_b, thickness
-                pixel_of[n] = pixel[p]
+                pixel_of[n, 0], pixel_of[n, 1] = pixel[p, 0], pixel[p, 1]
                 folded = min(b, 1 - b)
                 u = w00 * uv[p, 0, 0] + w10 * uv[p, 1, 0] + w01 * uv[p, 2, 0] + w11 * uv[p, 3, 0] + folded * fold[p, 0]
                 v = w00 * uv[p, 0, 1] + w10 * uv[p, 1, 1] + w01 * uv[p, 2, 1] + w11 * uv[p, 3, 1] + folded * fold[p, 1]
