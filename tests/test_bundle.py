@@ -12,6 +12,7 @@ import pytest
 from scipy.optimize import least_squares
 
 from marionette.geometry import axis_angle_to_matrix, make_transform, matrix_to_axis_angle, rotation_angle_deg
+from marionette.source import bundle
 from marionette.source.bundle import bundle_adjust, huber_cost
 
 K = np.array([[300.0, 0.0, 159.5], [0.0, 300.0, 119.5], [0.0, 0.0, 1.0]])
@@ -81,8 +82,10 @@ def twin(observed, uv, start, lifted, directions, free, held=()):
     return unpack(ref.x), ref.cost
 
 
-@pytest.mark.parametrize("seed", [0, 1])
-def test_reaches_the_optimum_of_the_dense_twin(seed):
+@pytest.mark.parametrize("seed, dense_frames", [(0, 250), (1, 250), (0, 0)])
+def test_reaches_the_optimum_of_the_dense_twin(seed, dense_frames, monkeypatch):
+    """Both ways of solving the reduced system: dense (short clips) and sparse (``dense_frames`` 0: long ones)."""
+    monkeypatch.setattr(bundle, "_DENSE_FRAMES", dense_frames)
     observed, uv, start, lifted, directions = problem(seed)
     free = np.arange(1, len(start))
     poses, points = bundle_adjust(observed, uv, K, start, lifted, directions, free, PRIOR, SCALE, 200, ftol=1e-14)

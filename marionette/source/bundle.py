@@ -14,11 +14,18 @@ least squares (weights ``ρ′`` per residual, curvature term dropped).
 from __future__ import annotations
 
 import numpy as np
+from scipy import sparse
+from scipy.sparse.linalg import spsolve
 from threadpoolctl import threadpool_limits
 
 from ..geometry import axis_angle_to_matrix, make_transform, skew
 
 __all__ = ["bundle_adjust", "huber_cost"]
+
+# Up to this many free frames the reduced system is solved dense (one BLAS product and a Cholesky-sized
+# solve, 0.1 s per call at 50 frames); beyond, as a sparse matrix (SuperLU), whose cost grows with the
+# frames times the tracks' length rather than with the frames cubed (800 frames: 3.6 s per call, not 17 s).
+_DENSE_FRAMES = 250
 
 
 def huber_cost(residuals: np.ndarray, scale: float) -> float:
@@ -72,6 +79,12 @@ def bundle_adjust(observed: np.ndarray, uv: np.ndarray, k: np.ndarray, poses: np
     obs_slot = slot[obs_t[moving]]
     fxy, cxy = np.array([k[0, 0], k[1, 1]]), np.array([k[0, 2], k[1, 2]])
     start = np.asarray(points, np.float64)
+    # Row and column of every entry of W's blocks (6F × 3N, one 6 × 3 block per moving observation) and of
+    # U's (6F × 6F, one 6 × 6 block per free frame).
+    w_index = (np.broadcast_to(6 * obs_slot[:, None, None] + np.arange(6)[:, None], (len(moving), 6, 3)).ravel(),
+               np.broadcast_to(3 * obs_i[moving][:, None, None] + np.arange(3), (len(moving), 6, 3)).ravel())
+    u_index = (np.broadcast_to(6 * np.arange(f_count)[:, None, None] + np.arange(6)[:, None], (f_count, 6, 6)).ravel(),
+               np.broadcast_to(6 * np.arange(f_count)[:, None, None] + np.arange(6), (f_count, 6, 6)).ravel())
 
     def evaluate(rot: np.ndarray, trans: np.ndarray, pts: np.ndarray):
         rx = np.einsum("oij,oj->oi", rot[obs_t], pts[obs_i])  # (O, 3)
@@ -104,22 +117,28 @@ def bundle_adjust(observed: np.ndarray, uv: np.ndarray, k: np.ndarray, poses: np
 
     def step(u, v, w, g_p, g_x, damping):
         """The damped Gauss–Newton step (Marquardt's diagonal scaling): pose twists (F, 6), point moves (N, 3)."""
-        eye3, eye6 = np.eye(3), np.eye(6)
-        v_d = v + (damping * np.einsum("nii->ni", v) + 1e-12)[..., None] * eye3
+        v_d = v + (damping * np.einsum("nii->ni", v) + 1e-12)[..., None] * np.eye(3)
         v_inv = np.linalg.inv(v_d)
         y = w @ v_inv[obs_i[moving]]  # (M, 6, 3): W V⁻¹ per observation
-        # Dense 6F × 3N layouts of W and W V⁻¹ (one block per observation), so that S is one matrix product.
-        w_mat, y_mat = np.zeros((2, f_count, 6, n_count, 3))
-        w_mat[obs_slot, :, obs_i[moving], :] = w
-        y_mat[obs_slot, :, obs_i[moving], :] = y
-        w_mat, y_mat = w_mat.reshape(6 * f_count, 3 * n_count), y_mat.reshape(6 * f_count, 3 * n_count)
-        reduced = -(y_mat @ w_mat.T)
-        blocks = reduced.reshape(f_count, 6, f_count, 6)
-        frames = np.arange(f_count)
-        blocks[frames, :, frames, :] += u + (damping * np.einsum("fii->fi", u) + 1e-12)[..., None] * eye6
-        d_p = np.linalg.solve(reduced, -g_p.ravel() + y_mat @ g_x.ravel()).reshape(f_count, 6)
-        d_x = (v_inv @ (-g_x - (d_p.ravel() @ w_mat).reshape(n_count, 3))[..., None])[..., 0]
-        return d_p, d_x
+        u_d = u + (damping * np.einsum("fii->fi", u) + 1e-12)[..., None] * np.eye(6)
+        if f_count <= _DENSE_FRAMES:  # dense 6F × 3N layouts of W and W V⁻¹: S is one matrix product
+            w_mat, y_mat = np.zeros((2, f_count, 6, n_count, 3))
+            w_mat[obs_slot, :, obs_i[moving], :] = w
+            y_mat[obs_slot, :, obs_i[moving], :] = y
+            w_mat, y_mat = w_mat.reshape(6 * f_count, 3 * n_count), y_mat.reshape(6 * f_count, 3 * n_count)
+            reduced = -(y_mat @ w_mat.T)
+            frames = np.arange(f_count)
+            reduced.reshape(f_count, 6, f_count, 6)[frames, :, frames, :] += u_d
+            d_p = np.linalg.solve(reduced, -g_p.ravel() + y_mat @ g_x.ravel())
+            back = d_p @ w_mat
+        else:  # two frames couple only through points seen in both: S is banded, as wide as the tracks are long
+            w_mat = sparse.csr_matrix((w.ravel(), w_index), shape=(6 * f_count, 3 * n_count))
+            y_mat = sparse.csr_matrix((y.ravel(), w_index), shape=(6 * f_count, 3 * n_count))
+            reduced = sparse.csr_matrix((u_d.ravel(), u_index), shape=(6 * f_count, 6 * f_count)) - y_mat @ w_mat.T
+            d_p = spsolve(reduced.tocsc(), -g_p.ravel() + y_mat @ g_x.ravel(), permc_spec="MMD_AT_PLUS_A")
+            back = w_mat.T @ d_p
+        d_x = (v_inv @ (-g_x - back.reshape(n_count, 3))[..., None])[..., 0]
+        return d_p.reshape(f_count, 6), d_x
 
     # One BLAS thread: a threaded matrix product or solve splits its sums differently with the thread count,
     # and a result that changes in its last bits can change a chaotic clip's poses by degrees.
