@@ -56,7 +56,7 @@ class RecoverOptions:
         About this many lift cells on the model (its stride follows the mask's area).
     max_area : float
         A relief from the fitted points is kept while the lifted surface holds at most this many times the
-        mask's area (front, back and walls of a smooth body hold 2-6 times it).
+        mask's area (a smooth body's front, back and walls hold 4-5 times it).
     min_iou : float
         Silhouette IoU between the aligned model and the frame's mask below which the frame stays failed.
         Synthetic recoveries reach 0.94-0.99; on the hand-held backpack clip with automatic masks, weak

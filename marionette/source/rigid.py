@@ -23,8 +23,8 @@ the rigidity itself, the classical structure-from-motion route:
    frame-0 surface has turned away.
 3. **Joint refinement.** A bundle adjustment (:mod:`marionette.source.bundle`;
    Triggs et al., "Bundle adjustment — a modern synthesis", 1999) over all
-   poses and a subset of the 3D points, with a Huber loss and a weak prior keeping each point's depth
-   near its starting value. The scale is a gauge freedom that reprojections
+   poses and a subset of the 3D points, with a Huber loss and a weak prior
+   keeping each point's depth near its starting value. The scale is a gauge freedom that reprojections
    cannot see: at the end it is reset so that the tracks lifted at frame 0
    keep their median depth, the shape prior's scale (left to the depth
    prior, it drifts with the shape guessed for surface that turns into view
