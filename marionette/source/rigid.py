@@ -21,20 +21,21 @@ the rigidity itself, the classical structure-from-motion route:
    surface that turned into view) are then lifted by casting their pixel ray
    into the volume moved by the pose at t, so they carry the pose once the
    frame-0 surface has turned away.
-3. **Joint refinement.** A bundle adjustment (:mod:`marionette.source.bundle`;
-   Triggs et al., "Bundle adjustment — a modern synthesis", 1999) over all
-   poses and a subset of the 3D points, with a Huber loss and a weak prior
-   keeping each point's depth near its starting value. The scale is a gauge freedom that reprojections
-   cannot see: at the end it is reset so that the tracks lifted at frame 0
-   keep their median depth, the shape prior's scale (left to the depth
-   prior, it drifts with the shape guessed for surface that turns into view
-   later). Where the object turns out of plane, parallax corrects the
-   guessed shape and the poses with it; where it does not (translation,
-   in-plane rotation) the shape stays the prior's and is irrelevant to the
-   motion anyway. It runs every ``refine_every`` frames on the frames so far
-   (so that the next PnP uses corrected points) and over the whole clip at
-   the end, where tracks are then cut where they start to disagree with the
-   fit (drift) and it runs once more.
+3. **Joint refinement.** A bundle adjustment
+   (:mod:`marionette.source.bundle`; Triggs et al., "Bundle adjustment — a
+   modern synthesis", 1999) over all poses and a subset of the 3D points,
+   with a Huber loss and a weak prior keeping each point's depth near its
+   starting value. The scale is a gauge freedom that reprojections cannot
+   see: at the end it is reset so that the tracks lifted at frame 0 keep
+   their median depth, the shape prior's scale (left to the depth prior, it
+   drifts with the shape guessed for surface that turns into view later).
+   Where the object turns out of plane, parallax corrects the guessed shape
+   and the poses with it; where it does not (translation, in-plane rotation)
+   the shape stays the prior's and is irrelevant to the motion anyway. It
+   runs every ``refine_every`` frames on the frames so far (so that the next
+   PnP uses corrected points) and over the whole clip at the end, where
+   tracks are then cut where they start to disagree with the fit (drift) and
+   it runs once more.
 4. **Centre.** :func:`carved_centroid` carves the prior volume, widened to
    the depth range of the points the fit triangulated, with the silhouettes
    of all frames under the fitted poses; its centroid is the body's centre
