@@ -80,7 +80,7 @@ from ..camera import Camera
 from ..errors import InputError
 from ..gaussians import Gaussians
 from .rasterizer import (
-    _B, _CA, _CB, _CC, _G, _OPACITY, _R, TILE, RenderOutput, _check_background, _direction_limits,
+    _B, _CA, _CB, _CC, _CHUNK, _G, _OPACITY, _R, TILE, RenderOutput, _check_background, _direction_limits,
     _exp_clamped, _forward, _Frame, _rotation, _screen_covariance, _splat, _splat_row, _tile_origin,
     _world_covariance,
 )
@@ -530,33 +530,10 @@ def _sh_backward_one(sh, i, x, y, z, v0, v1, v2, v_sh):
     return acc
 
 
-@numba.njit(parallel=True, cache=True, error_model="numpy")
-def _project_backward(means, quats, variances, opacities, sh, view, K, campos, width, height,
-                      pair, pair_start, want_pose):
-    """From the 2D gradients to the Gaussians' parameters, in float64.
-
-    Recomputes ``_preprocess``'s quantities for each visible Gaussian and runs
-    them backwards (see the module docstring). Scalars only: no allocation per
-    Gaussian.
-
-    Parameters
-    ----------
-    means (N, 3), quats (N, 4), variances (N, 3), opacities (N,), sh (N, C, 3) : float32
-    view (4, 4), K (3, 3), campos (3,) : float64
-    width, height : int
-    pair (P, 9) float32, pair_start (N + 1,) int64
-        From ``_blend_backward``: Gaussian ``i``'s rows, summed here in float64
-        and in tile order, give ``∂L/∂`` ``u, v``, conic ``a, b, c``, opacity,
-        ``r, g, b``. Culled Gaussians have none and get zeros.
-    want_pose : bool
-
-    Returns
-    -------
-    v_means (N, 3), v_quats (N, 4), v_log_scales (N, 3), v_logits (N,), v_sh (N, C, 3) : float32
-    contrib : (N, 6) float64 (or (0, 6) without ``want_pose``)
-        ``[μ × ∂L/∂μ + 2 vex(Σ ∂L/∂Σ), ∂L/∂μ]``: each Gaussian's share of a pose gradient.
-    """
-    n = means.shape[0]
+@numba.njit(cache=True, error_model="numpy")
+def _project_range(lo, hi, means, quats, variances, opacities, sh, view, K, campos, width, height,
+                   pair, pair_start, want_pose, v_means, v_quats, v_log_scales, v_logits, v_sh, contrib):
+    """``_project_backward`` for Gaussians ``lo .. hi - 1``, written into its outputs."""
     nc = sh.shape[1]
     fx, fy = K[0, 0], K[1, 1]
     lims = _direction_limits(K, width, height)
@@ -565,13 +542,7 @@ def _project_backward(means, quats, variances, opacities, sh, view, K, campos, w
     w10, w11, w12 = view[1, 0], view[1, 1], view[1, 2]
     w20, w21, w22 = view[2, 0], view[2, 1], view[2, 2]
     f32 = np.float32
-    v_means = np.empty((n, 3), f32)
-    v_quats = np.empty((n, 4), f32)
-    v_log_scales = np.empty((n, 3), f32)
-    v_logits = np.empty(n, f32)
-    v_sh = np.empty((n, nc, 3), f32)
-    contrib = np.zeros((n if want_pose else 0, 6))
-    for i in numba.prange(n):
+    for i in range(lo, hi):
         if pair_start[i] == pair_start[i + 1]:
             for k in range(3):
                 v_means[i, k] = v_log_scales[i, k] = f32(0.0)
@@ -610,8 +581,6 @@ def _project_backward(means, quats, variances, opacities, sh, view, K, campos, w
         q0, q1, q2 = q
         sp0, sp1, sp2 = sp
         sq0, sq1, sq2 = sq
-        j00, j11 = fx * itz, fy * itz
-        j02, j12 = -j00 * cxz, -j11 * cyz
         det = a * c_ - b * b
         id2 = 1.0 / (det * det)
         # Conic (c, -b, a) / det → Σ' entries a, b, c.
@@ -705,4 +674,45 @@ def _project_backward(means, quats, variances, opacities, sh, view, K, campos, w
             contrib[i, 1] = mz * vmx - mx * vmz + 2 * (a20 - a02)
             contrib[i, 2] = mx * vmy - my * vmx + 2 * (a01 - a10)
             contrib[i, 3], contrib[i, 4], contrib[i, 5] = vmx, vmy, vmz
+
+
+@numba.njit(parallel=True, cache=True, error_model="numpy")
+def _project_backward(means, quats, variances, opacities, sh, view, K, campos, width, height,
+                      pair, pair_start, want_pose):
+    """From the 2D gradients to the Gaussians' parameters, in float64.
+
+    Recomputes ``_preprocess``'s quantities for each visible Gaussian and runs
+    them backwards (see the module docstring). Scalars only: no allocation per
+    Gaussian.
+
+    Parameters
+    ----------
+    means (N, 3), quats (N, 4), variances (N, 3), opacities (N,), sh (N, C, 3) : float32
+    view (4, 4), K (3, 3), campos (3,) : float64
+    width, height : int
+    pair (P, 9) float32, pair_start (N + 1,) int64
+        From ``_blend_backward``: Gaussian ``i``'s rows, summed here in float64
+        and in tile order, give ``∂L/∂`` ``u, v``, conic ``a, b, c``, opacity,
+        ``r, g, b``. Culled Gaussians have none and get zeros.
+    want_pose : bool
+
+    Returns
+    -------
+    v_means (N, 3), v_quats (N, 4), v_log_scales (N, 3), v_logits (N,), v_sh (N, C, 3) : float32
+    contrib : (N, 6) float64 (or (0, 6) without ``want_pose``)
+        ``[μ × ∂L/∂μ + 2 vex(Σ ∂L/∂Σ), ∂L/∂μ]``: each Gaussian's share of a pose gradient.
+    """
+    n = means.shape[0]
+    nc = sh.shape[1]
+    f32 = np.float32
+    v_means = np.empty((n, 3), f32)
+    v_quats = np.empty((n, 4), f32)
+    v_log_scales = np.empty((n, 3), f32)
+    v_logits = np.empty(n, f32)
+    v_sh = np.empty((n, nc, 3), f32)
+    contrib = np.zeros((n if want_pose else 0, 6))
+    for chunk in numba.prange((n + _CHUNK - 1) // _CHUNK):
+        _project_range(chunk * _CHUNK, min(n, (chunk + 1) * _CHUNK), means, quats, variances, opacities, sh,
+                       view, K, campos, width, height, pair, pair_start, want_pose,
+                       v_means, v_quats, v_log_scales, v_logits, v_sh, contrib)
     return v_means, v_quats, v_log_scales, v_logits, v_sh, contrib

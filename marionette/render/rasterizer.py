@@ -78,6 +78,10 @@ _BIN_RUNS = 8
 #: Added to the alpha ellipse ``2 ln(255 o)`` so rounding never drops a pixel
 #: that the ``α >= 1/255`` test would keep.
 _ELLIPSE_MARGIN = 0.01
+#: Gaussians per task of a parallel loop over Gaussians. The loop only hands
+#: out the tasks to a serial function: numba compiles a parallel loop's long
+#: body about twice as slowly as a function's.
+_CHUNK = 1024
 
 # Columns of the per-Gaussian parameter table built by ``_preprocess``.
 _U, _V, _CA, _CB, _CC, _OPACITY, _R, _G, _B, _Z = range(10)
@@ -205,7 +209,7 @@ def _forward(gaussians: Gaussians, camera: Camera, background: np.ndarray,
     # Tiles differ widely in cost (object vs empty): hand them out one at a time.
     previous = numba.set_parallel_chunksize(1)
     try:
-        out = _blend(tile_start, tile_ids, params, boxes, w, h, background, True if save else None)
+        out = _blend(tile_start, tile_ids, params, boxes, w, h, background, bool(save))
     finally:
         numba.set_parallel_chunksize(previous)
     lap("blend")
@@ -252,47 +256,16 @@ def _depth_order(depths: np.ndarray, status: np.ndarray) -> np.ndarray:
     return (keys & np.uint64(0xFFFFFFFF)).astype(np.int32)
 
 
-@numba.njit(parallel=True, cache=True, error_model="numpy")
-def _preprocess(means, quats, log_scales, opacity_logits, sh, variances, opacities, ellipse,
-                view, K, campos, width, height):
-    """Project Gaussians to screen space, without branches (culling is a flag).
-
-    Colours are evaluated for all Gaussians: streaming through ``sh`` in order
-    is far cheaper than fetching the visible ones' rows in depth order.
-
-    Parameters
-    ----------
-    means (N, 3), quats (N, 4), log_scales (N, 3), opacity_logits (N,), sh (N, C, 3) : float32
-        The Gaussians; scales and logits are only checked for finiteness here.
-    variances (N, 3), opacities (N,), ellipse (N,) : float32
-        From ``_activations``.
-    view : (4, 4) float64 world-to-camera; K : (3, 3) float64; campos : (3,) float64
-    width, height : int
-
-    Returns
-    -------
-    params : (N, 10) float32
-        ``u, v, conic_a, conic_b, conic_c, opacity, r, g, b, z`` with
-        ``power = -½ (a dx² + c dy²) - b dx dy``.
-    boxes : (N, 4) int32
-        Inclusive pixel box ``x0, x1, y0, y1``: the square 3σ box cut to the
-        image and to the alpha ellipse.
-    depths : (N,) float32
-        Camera-space z.
-    status : (N,) int8
-        1 visible, 0 culled, -1 non-finite input.
-    """
-    n = means.shape[0]
+@numba.njit(cache=True, error_model="numpy")
+def _preprocess_range(lo, hi, means, quats, log_scales, opacity_logits, sh, variances, opacities, ellipse,
+                      view, K, campos, width, height, params, boxes, depths, status):
+    """``_preprocess`` for Gaussians ``lo .. hi - 1``, written into its outputs."""
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     lims = _direction_limits(K, width, height)
     w00, w01, w02, w03 = view[0, 0], view[0, 1], view[0, 2], view[0, 3]
     w10, w11, w12, w13 = view[1, 0], view[1, 1], view[1, 2], view[1, 3]
     w20, w21, w22, w23 = view[2, 0], view[2, 1], view[2, 2], view[2, 3]
-    params = np.empty((n, _NPARAM), np.float32)
-    boxes = np.empty((n, 4), np.int32)
-    depths = np.empty(n, np.float32)
-    status = np.empty(n, np.int8)
-    for i in numba.prange(n):
+    for i in range(lo, hi):
         # 0 * x is NaN exactly when x is NaN or infinite.
         zero = np.float32(0.0)
         nan = (zero * opacity_logits[i] + zero * means[i, 0] + zero * means[i, 1]
@@ -341,6 +314,47 @@ def _preprocess(means, quats, log_scales, opacity_logits, sh, variances, opaciti
         params[i, _Z] = tz
         boxes[i, 0], boxes[i, 1], boxes[i, 2], boxes[i, 3] = x0, x1, y0, y1
         depths[i] = tz
+
+
+@numba.njit(parallel=True, cache=True, error_model="numpy")
+def _preprocess(means, quats, log_scales, opacity_logits, sh, variances, opacities, ellipse,
+                view, K, campos, width, height):
+    """Project Gaussians to screen space, without branches (culling is a flag).
+
+    Colours are evaluated for all Gaussians: streaming through ``sh`` in order
+    is far cheaper than fetching the visible ones' rows in depth order.
+
+    Parameters
+    ----------
+    means (N, 3), quats (N, 4), log_scales (N, 3), opacity_logits (N,), sh (N, C, 3) : float32
+        The Gaussians; scales and logits are only checked for finiteness here.
+    variances (N, 3), opacities (N,), ellipse (N,) : float32
+        From ``_activations``.
+    view : (4, 4) float64 world-to-camera; K : (3, 3) float64; campos : (3,) float64
+    width, height : int
+
+    Returns
+    -------
+    params : (N, 10) float32
+        ``u, v, conic_a, conic_b, conic_c, opacity, r, g, b, z`` with
+        ``power = -½ (a dx² + c dy²) - b dx dy``.
+    boxes : (N, 4) int32
+        Inclusive pixel box ``x0, x1, y0, y1``: the square 3σ box cut to the
+        image and to the alpha ellipse.
+    depths : (N,) float32
+        Camera-space z.
+    status : (N,) int8
+        1 visible, 0 culled, -1 non-finite input.
+    """
+    n = means.shape[0]
+    params = np.empty((n, _NPARAM), np.float32)
+    boxes = np.empty((n, 4), np.int32)
+    depths = np.empty(n, np.float32)
+    status = np.empty(n, np.int8)
+    for chunk in numba.prange((n + _CHUNK - 1) // _CHUNK):
+        _preprocess_range(chunk * _CHUNK, min(n, (chunk + 1) * _CHUNK), means, quats, log_scales,
+                          opacity_logits, sh, variances, opacities, ellipse, view, K, campos, width, height,
+                          params, boxes, depths, status)
     return params, boxes, depths, status
 
 
@@ -603,9 +617,10 @@ def _blend(tile_start, tile_ids, params, boxes, width, height, background, save)
         The visible Gaussians' rows, front to back (``_gather``).
     width, height : int
     background : (3,) float32
-    save : True or None
-        None for the plain forward: numba prunes the branches on a None
-        argument, so that kernel holds none of the saving code.
+    save : bool
+        A runtime test rather than a pruned branch, so that the plain and the
+        saving forward share one compiled kernel (each costs seconds to compile;
+        the test costs nothing measurable, ``benchmarks/bench_rasterizer.py``).
 
     Returns
     -------
@@ -627,7 +642,7 @@ def _blend(tile_start, tile_ids, params, boxes, width, height, background, save)
     image = np.empty((height, width, 3), np.float32)
     alpha_out = np.empty((height, width), np.float32)
     depth_out = np.empty((height, width), np.float32)
-    sh, sw, st = (height, width, ntiles) if save is not None else (0, 0, 0)
+    sh, sw, st = (height, width, ntiles) if save else (0, 0, 0)
     t_final = np.empty((sh, sw), np.float32)
     stop_out = np.empty((sh, sw), np.int32)
     row_last = np.full((st, TILE), -1, np.int32)
@@ -638,7 +653,7 @@ def _blend(tile_start, tile_ids, params, boxes, width, height, background, save)
         xs, ys, tw, th = _tile_origin(t, ntx, width, height)
         state = np.zeros(5 * TILE * TILE, np.float32)
         state[:TILE * TILE] = one
-        stop = np.full(TILE * TILE if save is not None else 0, -1, np.int32)
+        stop = np.full(TILE * TILE if save else 0, -1, np.int32)
         row_done = np.zeros(TILE, np.int64)
         ndone = 0
         for k in range(tile_start[t], tile_start[t + 1]):
@@ -662,7 +677,7 @@ def _blend(tile_start, tile_ids, params, boxes, width, height, background, save)
                                       red, green, blue, z)
                 row_done[ly] += nd
                 ndone += nd
-                if save is not None:
+                if save:
                     row_last[t, ly] = k
                     if nd > 0:
                         for lx in range(bx0, bx1 + 1):
@@ -679,12 +694,12 @@ def _blend(tile_start, tile_ids, params, boxes, width, height, background, save)
                 for ch in range(3):
                     raw = planes[1 + ch, ly, lx] + tr * background[ch]
                     image[y, x, ch] = min(max(raw, zero), one)
-                    if save is not None:
+                    if save:
                         unclipped[y, x, ch] = (raw >= zero) & (raw <= one)
                 a = one - tr
                 alpha_out[y, x] = a
                 depth_out[y, x] = planes[4, ly, lx] / a if a > zero else zero
-                if save is not None:
+                if save:
                     t_final[y, x] = tr
                     stop_out[y, x] = stop[ly * TILE + lx]
     return image, alpha_out, depth_out, t_final, stop_out, row_last, unclipped
