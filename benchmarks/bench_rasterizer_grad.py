@@ -40,7 +40,9 @@ def time_scene(n: int, runs: int) -> dict[str, float]:
     """Median wall and CPU seconds of the forward alone and of forward + backward."""
     gaussians, camera = make_scene(n)
     rng = np.random.default_rng(1)
-    target = np.clip(render(gaussians, camera).image + rng.normal(0.0, 0.05, (SIZE, SIZE, 3)), 0, 1)
+    # float32, as the fitting code keeps its target frames.
+    target = np.clip(render(gaussians, camera).image + rng.normal(0.0, 0.05, (SIZE, SIZE, 3)), 0, 1
+                     ).astype(np.float32)
     group = np.arange(n) % 3 == 0
 
     def forward() -> None:
@@ -99,7 +101,7 @@ def main() -> None:
         f"Produced by `python benchmarks/bench_rasterizer_grad.py --runs {args.runs}`: {SIZE}×{SIZE} image, "
         "the synthetic 3DGS-like object of `bench_rasterizer.py` (SH degree 3). *Forward* is "
         "`render`; *forward + backward* is one fitting iteration: `render_with_grad` then `backward` "
-        "of an L2 loss against a target image, with the SE(3) gradient of a group holding a third of "
+        "of an L2 loss against a float32 target image, with the SE(3) gradient of a group holding a third of "
         f"the Gaussians. Medians of {args.runs} runs, the two timed alternately after a warm-up.",
         "",
         "| Gaussians | forward ms | forward + backward ms | ratio | CPU ratio | best forward ms "

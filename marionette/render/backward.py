@@ -70,6 +70,7 @@ stop decisions are piecewise constant and carry no gradient.
 from __future__ import annotations
 
 import math
+import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -181,32 +182,36 @@ class RenderWithGrad:
                     raise InputError(f"backward: pivot must be finite with shape (3,) or ({len(masks)}, 3), "
                                      f"got {pv.shape}")
                 pivots[:] = pv
+        gs = s.gaussians
+        nc = gs.sh.shape[1]
+        grads = RenderGradients(np.empty((n, 3), np.float32), np.empty((n, 4), np.float32),
+                                np.empty((n, 3), np.float32), np.empty(n, np.float32), np.empty((n, nc, 3), np.float32))
         f = s.frame
         g_img = np.where(f.unclipped, g_img, np.float32(0.0))
 
+        pair = _scratch("pair", (len(f.tile_ids), _NGRAD), np.float32)
+        _zero_rows(pair)
         previous = numba.set_parallel_chunksize(1)
         try:
-            pair = _blend_backward(f.tile_start, f.tile_ids, f.params, f.boxes, w, h, s.background,
-                                   f.t_final, f.stop, f.row_last, g_img, g_a, f.order, s.pair_start,
-                                   np.zeros((len(f.tile_ids), _NGRAD), np.float32))
+            _blend_backward(f.tile_start, f.tile_ids, f.params, f.boxes, w, h, s.background,
+                            f.t_final, f.stop, f.row_last, g_img, g_a, f.order, s.pair_start, pair)
         finally:
             numba.set_parallel_chunksize(previous)
-        gs = s.gaussians
         cam = s.camera
-        v_means, v_quats, v_log_scales, v_logits, v_sh, contrib = _project_backward(
-            gs.means, gs.quats, f.variances, f.opacities, gs.sh, cam.world_to_camera, cam.K, cam.center,
-            w, h, pair, s.pair_start, masks is not None)
+        contrib = _scratch("contrib", (n if masks is not None else 0, 6), np.float64)
+        _project_backward(gs.means, gs.quats, f.variances, f.opacities, gs.sh, cam.world_to_camera, cam.K,
+                          cam.center, w, h, pair, s.pair_start, masks is not None, grads.means, grads.quats,
+                          grads.log_scales, grads.opacity_logits, grads.sh, contrib)
         pose = None
         if masks is not None:
             pose = np.empty((len(masks), 6))
             for k, m in enumerate(masks):
-                part = contrib[m]
-                g_v = part[:, 3:].sum(axis=0)
-                pose[k, :3] = part[:, :3].sum(axis=0) - np.cross(pivots[k], g_v)
-                pose[k, 3:] = g_v
+                part = _masked_sum(contrib, m)
+                pose[k, :3] = part[:3] - np.cross(pivots[k], part[3:])
+                pose[k, 3:] = part[3:]
             if not isinstance(groups, (list, tuple)):
                 pose = pose[0]
-        return RenderGradients(v_means, v_quats, v_log_scales, v_logits, v_sh, pose)
+        return RenderGradients(grads.means, grads.quats, grads.log_scales, grads.opacity_logits, grads.sh, pose)
 
 
 def render_with_grad(gaussians: Gaussians, camera: Camera,
@@ -245,18 +250,58 @@ def render_with_grad(gaussians: Gaussians, camera: Camera,
     return RenderWithGrad(RenderOutput(frame.image, frame.alpha, frame.depth), saved)
 
 
-def _pair_start(boxes: np.ndarray, order: np.ndarray, n: int) -> np.ndarray:
-    """boxes (M, 4) int32 in depth order, order (M,) int32 → pair_start (N + 1,) int64.
+@numba.njit(cache=True)
+def _pair_start(boxes, order, n):
+    """boxes (M, 4) int32 in depth order, order (M,) int32, n → pair_start (N + 1,) int64.
 
     Gaussian ``i`` owns slots ``pair_start[i] .. pair_start[i + 1] - 1`` of the
     backward's pair table, one per tile of its box, row-major (the tiles
     ``_bin`` gave it); culled Gaussians own none. Slots follow the input order
     so that ``_project_backward`` reads them as a stream.
     """
-    tiles = np.zeros(n + 1, np.int64)
-    tiles[1:][order] = ((boxes[:, 1] // TILE - boxes[:, 0] // TILE + 1).astype(np.int64)
-                        * (boxes[:, 3] // TILE - boxes[:, 2] // TILE + 1))
-    return np.cumsum(tiles)
+    start = np.zeros(n + 1, np.int64)
+    for r in range(order.shape[0]):
+        start[order[r] + 1] = (np.int64(boxes[r, 1] // TILE - boxes[r, 0] // TILE + 1)
+                               * np.int64(boxes[r, 3] // TILE - boxes[r, 2] // TILE + 1))
+    for i in range(n):
+        start[i + 1] += start[i]
+    return start
+
+
+@numba.njit(parallel=True, cache=True)
+def _zero_rows(table):
+    """Set table (P, K) to zeros, in parallel."""
+    for r in numba.prange(table.shape[0]):
+        for k in range(table.shape[1]):
+            table[r, k] = 0
+
+
+@numba.njit(cache=True)
+def _masked_sum(rows, mask):
+    """Sum of rows (N, 6) float64 where mask (N,) bool holds → (6,), in index order."""
+    total = np.zeros(6)
+    for i in range(rows.shape[0]):
+        if mask[i]:
+            for k in range(6):
+                total[k] += rows[i, k]
+    return total
+
+
+# Scratch tables of the backward pass, kept per thread and reused from call to call: the pair
+# table of a large scene is tens of megabytes, and fresh pages cost more than the kernel that
+# fills them. Per thread, so that concurrent fits (the web app's jobs) never share one.
+_scratch_tables = threading.local()
+
+
+def _scratch(name: str, shape: tuple[int, int], dtype: type) -> np.ndarray:
+    """A C-contiguous array of ``shape`` and ``dtype``, its contents undefined: a view of this
+    thread's buffer ``name``, which grows (to 1.25× the request) when too small."""
+    size = shape[0] * shape[1]
+    buffer = getattr(_scratch_tables, name, None)
+    if buffer is None or buffer.size < size or buffer.dtype != dtype:
+        buffer = np.empty(int(size * 1.25) + 1, dtype)
+        setattr(_scratch_tables, name, buffer)
+    return buffer[:size].reshape(shape)
 
 
 def _check_grad(value: object, shape: tuple[int, ...], name: str) -> np.ndarray:
@@ -378,7 +423,7 @@ def _blend_backward(tile_start, tile_ids, params, boxes, width, height, backgrou
     order (M,) int32, pair_start (N + 1,) int64
         Row → Gaussian, and each Gaussian's slots (``_pair_start``).
     pair : (P, 9) float32, zeros
-        Filled here and returned: the share of one tile's pixels in the gradients
+        Filled here: the share of one tile's pixels in the gradients
         of one Gaussian (``u, v``, conic ``a, b, c``, opacity, ``r, g, b``), in
         the Gaussian's slot for that tile; each Gaussian's rows are contiguous and
         in tile order. Rows that stay zero (Gaussians behind stopped pixels, or
@@ -444,7 +489,6 @@ def _blend_backward(tile_start, tile_ids, params, boxes, width, height, backgrou
                     pair[slot, q] = accs[q * TILE]
             for q in range(_NGRAD):
                 accs[q * TILE] = f32(0.0)
-    return pair
 
 
 @numba.njit(cache=True, inline="always")
@@ -552,6 +596,9 @@ def _project_range(lo, hi, means, quats, variances, opacities, sh, view, K, camp
             for m in range(nc):
                 for k in range(3):
                     v_sh[i, m, k] = f32(0.0)
+            if want_pose:
+                for k in range(6):
+                    contrib[i, k] = 0.0
             continue
         g_u = g_v = g_ca = g_cb = g_cc = g_o = g_r = g_g = g_b = 0.0
         for slot in range(pair_start[i], pair_start[i + 1]):
@@ -678,7 +725,7 @@ def _project_range(lo, hi, means, quats, variances, opacities, sh, view, K, camp
 
 @numba.njit(parallel=True, cache=True, error_model="numpy")
 def _project_backward(means, quats, variances, opacities, sh, view, K, campos, width, height,
-                      pair, pair_start, want_pose):
+                      pair, pair_start, want_pose, v_means, v_quats, v_log_scales, v_logits, v_sh, contrib):
     """From the 2D gradients to the Gaussians' parameters, in float64.
 
     Recomputes ``_preprocess``'s quantities for each visible Gaussian and runs
@@ -695,24 +742,14 @@ def _project_backward(means, quats, variances, opacities, sh, view, K, campos, w
         and in tile order, give ``∂L/∂`` ``u, v``, conic ``a, b, c``, opacity,
         ``r, g, b``. Culled Gaussians have none and get zeros.
     want_pose : bool
-
-    Returns
-    -------
     v_means (N, 3), v_quats (N, 4), v_log_scales (N, 3), v_logits (N,), v_sh (N, C, 3) : float32
-    contrib : (N, 6) float64 (or (0, 6) without ``want_pose``)
-        ``[μ × ∂L/∂μ + 2 vex(Σ ∂L/∂Σ), ∂L/∂μ]``: each Gaussian's share of a pose gradient.
+        Outputs, every element written.
+    contrib : (N, 6) float64, written with ``want_pose`` (else unused)
+        ``[μ × ∂L/∂μ + 2 vex(Σ ∂L/∂Σ), ∂L/∂μ]``: each Gaussian's share of a pose gradient
+        (zeros for culled Gaussians).
     """
     n = means.shape[0]
-    nc = sh.shape[1]
-    f32 = np.float32
-    v_means = np.empty((n, 3), f32)
-    v_quats = np.empty((n, 4), f32)
-    v_log_scales = np.empty((n, 3), f32)
-    v_logits = np.empty(n, f32)
-    v_sh = np.empty((n, nc, 3), f32)
-    contrib = np.zeros((n if want_pose else 0, 6))
     for chunk in numba.prange((n + _CHUNK - 1) // _CHUNK):
         _project_range(chunk * _CHUNK, min(n, (chunk + 1) * _CHUNK), means, quats, variances, opacities, sh,
                        view, K, campos, width, height, pair, pair_start, want_pose,
                        v_means, v_quats, v_log_scales, v_logits, v_sh, contrib)
-    return v_means, v_quats, v_log_scales, v_logits, v_sh, contrib
