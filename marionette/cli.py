@@ -595,7 +595,7 @@ def reconstruct(source: Annotated[Path, typer.Argument(help="Video file or folde
                     help="Fit every N-th frame (the others are left out, e.g. to test the result).")] = 1,
                 iterations: Annotated[int, typer.Option(help="Optimisation steps (one frame each).")] = 600,
                 max_side: Annotated[int, typer.Option(
-                    help="Long side of the frames the fit works on (before cropping to the object).")] = 480,
+                    help="Long side of the frames the fit works on (before cropping to the object).")] = 960,
                 quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False,
                 config: Config = None) -> None:
     """Reconstruct the source object as 3D Gaussians at frame 0, with each Gaussian's part."""
