@@ -110,8 +110,8 @@ class Gaussians:
         ``quats`` is one quaternion (4,) for all, one per Gaussian (N, 4), or with ``labels`` (N,) int
         one per group (P, 4), Gaussian i turned by ``quats[labels[i]]``.
 
-        SH coefficients beyond degree 0 are not rotated (they are rare in
-        single-image targets, and rotating them is a later refinement).
+        SH coefficients turn with them (:func:`~marionette.render.sh.rotate_sh`): a
+        turned Gaussian shows towards ``d`` the colour it showed towards ``Rᵀ d``.
         """
         turns = np.ascontiguousarray(np.asarray(quats, dtype=np.float64).reshape(-1, 4))
         if labels is None:
@@ -121,7 +121,11 @@ class Gaussians:
         labels = np.asarray(labels)
         if labels.shape != (len(self),) or (len(labels) and (labels.min() < 0 or labels.max() >= len(turns))):
             raise InputError(f"turned: labels must be ({len(self)},) indices into {len(turns)} quaternions")
-        return replace(self, quats=_turn(self.quats, turns, labels))
+        from .geometry import quaternion_to_matrix
+        from .render.sh import rotate_sh  # imported here: the renderer imports this module
+
+        return replace(self, quats=_turn(self.quats, turns, labels),
+                       sh=rotate_sh(self.sh, quaternion_to_matrix(turns), labels))
 
     @staticmethod
     def concatenate(parts: list["Gaussians"]) -> "Gaussians":

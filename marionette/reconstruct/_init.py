@@ -20,6 +20,7 @@ from ..camera import Camera
 from ..gaussians import Gaussians
 from ..geometry import invert_transform, matrix_to_quaternion, quaternion_multiply
 from ..prior import SpatPrior
+from ..render.sh import rotate_sh
 from ..target.lift import LiftOptions, lift_image
 
 __all__ = ["initial_gaussians", "pose_gaussians", "part_layout"]
@@ -29,14 +30,15 @@ def pose_gaussians(gaussians: Gaussians, parts: np.ndarray, poses: np.ndarray) -
     """Gaussians at frame 0 (N) with part indices (N,) moved by per-part poses (K, 4, 4).
 
     Means ``R μ + t``; quaternions ``q_R ⊗ q`` (not renormalised: the
-    renderer normalises, and the product keeps the norm); SH not rotated.
+    renderer normalises, and the product keeps the norm); SH coefficients
+    turned with them.
     """
     rot, trans = poses[parts, :3, :3], poses[parts, :3, 3]  # (N, 3, 3), (N, 3)
     means = np.einsum("nij,nj->ni", rot, gaussians.means.astype(np.float64)) + trans
     q_r = matrix_to_quaternion(poses[:, :3, :3])[parts]  # (N, 4)
     quats = quaternion_multiply(q_r, gaussians.quats.astype(np.float64))
     return Gaussians(means.astype(np.float32), quats.astype(np.float32), gaussians.log_scales,
-                     gaussians.opacity_logits, gaussians.sh)
+                     gaussians.opacity_logits, rotate_sh(gaussians.sh, poses[:, :3, :3], parts))
 
 
 def part_layout(prior: SpatPrior, shape: tuple[int, int]) -> np.ndarray | None:

@@ -40,8 +40,9 @@ Jacobian, colours ``max(SH + 0.5, 0)``, the image clipped to [0, 1]).
 
 **Rigid pose.** A twist ``ξ = [ω, v]`` acting on a group of Gaussians about a
 pivot ``p`` moves them to ``μ' = exp(ω^) (μ - p) + p + v`` and turns them by
-``q' = q_ω ⊗ q`` (``Σ' = R Σ Rᵀ``; SH coefficients are not rotated, as in
-:meth:`Gaussians.turned`). The gradient is taken at ``ξ = 0``, where every
+``q' = q_ω ⊗ q`` (``Σ' = R Σ Rᵀ``). The turn of SH coefficients beyond degree 0
+(:meth:`Gaussians.turned` turns them too) is left out: exact for the degree-0
+colours the pose fits use. The gradient is taken at ``ξ = 0``, where every
 parameterisation of SE(3) with this tangent (``exp`` of the twist, or rotation
 and translation separately) gives the same derivative::
 

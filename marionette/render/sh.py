@@ -18,7 +18,7 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["eval_sh"]
+__all__ = ["eval_sh", "rotate_sh", "sh_rotations"]
 
 SH_C0 = 0.28209479177387814
 SH_C1 = 0.4886025119029199
@@ -70,6 +70,91 @@ def eval_sh(sh: np.ndarray, dirs: np.ndarray) -> np.ndarray:
     unit = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
     rgb = np.einsum("nc,nck->nk", _basis(unit, sh.shape[1]), sh) + 0.5
     return np.maximum(rgb, 0.0).astype(np.float32)
+
+
+def _fibonacci_sphere(k: int) -> np.ndarray:
+    """k roughly even unit directions (k, 3) float64."""
+    i = np.arange(k) + 0.5
+    z = 1.0 - 2.0 * i / k
+    r = np.sqrt(1.0 - z * z)
+    phi = np.pi * (3.0 - np.sqrt(5.0)) * i
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+#: Directions on which each band's rotation is solved: any 2l + 1 directions in general position
+#: determine it, since a band is closed under rotation; 32 keep the solve well conditioned.
+_FIT_DIRS = _fibonacci_sphere(32)
+#: Coefficient ranges of the bands l = 1, 2, 3.
+_BANDS = ((1, 4), (4, 9), (9, 16))
+
+
+def sh_rotations(rotations: np.ndarray, coefficients: int) -> np.ndarray:
+    """Matrices that turn SH coefficients with their Gaussian.
+
+    Parameters
+    ----------
+    rotations : (P, 3, 3) array
+    coefficients : int
+        ``C`` in 1, 4, 9, 16.
+
+    Returns
+    -------
+    (P, C, C) float64
+        ``M``, block diagonal by band (band 0 the identity), such that the
+        coefficients ``M @ sh`` show in direction ``d`` the colour ``sh`` shows
+        in ``Rᵀ d``: ``basis(Rᵀ d) = basis(d) M``, solved on fixed directions.
+    """
+    rotations = np.asarray(rotations, dtype=np.float64).reshape(-1, 3, 3)
+    out = np.zeros((len(rotations), coefficients, coefficients))
+    out[:, 0, 0] = 1.0
+    base = _basis(_FIT_DIRS, coefficients)  # (K, C)
+    k = len(_FIT_DIRS)
+    for lo, hi in _BANDS:
+        if hi > coefficients:
+            break
+        solve = np.linalg.pinv(base[:, lo:hi])  # (2l + 1, K)
+        for s in range(0, len(rotations), 4096):  # bounded temporaries for one rotation per Gaussian
+            chunk = rotations[s:s + 4096]
+            turned = (_FIT_DIRS @ chunk).reshape(-1, 3)  # rows dᵀ R = (Rᵀ d)ᵀ
+            out[s:s + 4096, lo:hi, lo:hi] = solve @ _basis(turned, hi).reshape(len(chunk), k, hi)[..., lo:hi]
+    return out
+
+
+def rotate_sh(sh: np.ndarray, rotations: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """SH coefficients of Gaussians turned about their centres.
+
+    sh (N, C, 3), rotations (P, 3, 3), labels (N,) int: Gaussian ``i`` turned
+    by ``rotations[labels[i]]`` → (N, C, 3) float32 that show in direction
+    ``d`` the colour ``sh`` shows in ``Rᵀ d``. Degree 0 has no direction: ``sh``
+    itself comes back.
+    """
+    if sh.shape[1] == 1:
+        return sh
+    mats = sh_rotations(rotations, sh.shape[1])
+    return _apply_sh_rotations(np.ascontiguousarray(sh, dtype=np.float32), mats,
+                               np.ascontiguousarray(labels, dtype=np.int64))
+
+
+@numba.njit(parallel=True, cache=True)
+def _apply_sh_rotations(sh, mats, labels):
+    """sh (N, C, 3) float32, mats (P, C, C) block-diagonal float64, labels (N,) → (N, C, 3) float32."""
+    n, c = sh.shape[0], sh.shape[1]
+    out = np.empty_like(sh)
+    for i in numba.prange(n):
+        m = labels[i]
+        for k in range(3):
+            out[i, 0, k] = sh[i, 0, k]
+        for band in range(1, 4):
+            lo, hi = band * band, (band + 1) * (band + 1)
+            if hi > c:
+                break
+            for a in range(lo, hi):
+                for k in range(3):
+                    acc = 0.0
+                    for b in range(lo, hi):
+                        acc += mats[m, a, b] * sh[i, b, k]
+                    out[i, a, k] = acc
+    return out
 
 
 @numba.njit(cache=True, inline="always")
