@@ -156,3 +156,38 @@ def test_eval_self_with_the_reconstruction_beats_the_frame0_lift(source_dir, tmp
     assert rec["psnr"] > lift["psnr"] + 2.0, (rec["psnr"], lift["psnr"])
     with pytest.raises(InputError, match="target"):
         eval_self(source_dir / "frames", source_dir / "masks", tmp_path / "bad", target="mesh")
+
+
+def test_fit_gradients_of_the_view_dependent_colours_match_finite_differences():
+    """The degree-1 SH terms live in the object's frame and are turned with each part's pose: the fit's
+    gradient of them (the renderer's, turned back) is the loss's own slope."""
+    from marionette.camera import Camera
+    from marionette.geometry import axis_angle_to_matrix, make_transform, matrix_to_quaternion
+    from marionette.reconstruct._views import FitView
+    from marionette.reconstruct.fit import _loss_and_grads
+
+    rng = np.random.default_rng(5)
+    n = 24
+    params = {"means": rng.normal(0, 0.25, (n, 3)).astype(np.float32),
+              "quats": rng.normal(size=(n, 4)).astype(np.float32),
+              "log_scales": np.log(rng.uniform(0.08, 0.2, (n, 3))).astype(np.float32),
+              "logits": np.full(n, 1.5, np.float32), "dc": rng.normal(0, 0.3, (n, 3)).astype(np.float32),
+              "rest": rng.normal(0, 0.2, (n, 3, 3)).astype(np.float32)}
+    parts = np.repeat([0, 1], n // 2)
+    poses = np.stack([make_transform(axis_angle_to_matrix(v), t) for v, t in
+                      (([0.4, -0.9, 0.2], [0.0, 0.0, 3.0]), ([-0.8, 0.5, 1.1], [0.1, -0.1, 3.2]))])
+    camera = Camera(np.array([[60.0, 0, 24], [0, 60.0, 24], [0, 0, 1]]), np.eye(4), 48, 48)
+    view = FitView(0, camera, rng.uniform(0, 1, (48, 48, 3)).astype(np.float32), np.ones((48, 48), np.float32))
+    q_pose = matrix_to_quaternion(poses[:, :3, :3])
+    _, grads, _ = _loss_and_grads(params, parts, view, poses, q_pose, 0.5)
+    direction = rng.normal(size=(n, 3, 3))
+    step = 2e-2
+
+    def loss_at(offset: float) -> float:
+        moved = {**params, "rest": (params["rest"] + offset * direction).astype(np.float32)}
+        return _loss_and_grads(moved, parts, view, poses, q_pose, 0.5)[0]
+
+    numeric = (loss_at(step) - loss_at(-step)) / (2 * step)
+    analytic = float(np.sum(grads["rest"] * direction))
+    assert abs(numeric) > 1e-4  # the colours' direction terms do move the loss
+    assert analytic == pytest.approx(numeric, rel=0.03)
