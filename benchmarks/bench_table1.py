@@ -256,47 +256,48 @@ def verdicts(m: dict, paper) -> dict[str, str]:
             "lpips": lpips.replace("tie", "tie (met)").replace("**yes**", "**yes** (met)")}
 
 
-#: What the table and the contact sheets show (written from the run of 2026-12-01; re-read after a new run).
+#: What the table and the contact sheets show (written from the run of 2026-12-02; re-read after a new run).
 READING = """\
 Reading the table. PSNR (and SSIM, LPIPS) are over whole frames on white, as in the paper's Table 1, and the
 object covers on average only 6 % (car-shadow), 9 % (car-turn) and 17 % (train) of the frame: a white
 background rendered white lifts the whole-frame PSNR about 10·log10(1/share) = 12, 10 and 8 dB above the
-object's own, the *masked PSNR* column (17.5, 18.1 and 20.2 dB for the reconstruction). So the ≥ 3 dB over the
-paper is met on all three paper clips, but the object itself is reproduced at 17-20 dB, not 26-30.
+object's own, the *masked PSNR* column (19.7, 19.7 and 20.7 dB for the reconstruction). So the ≥ 3 dB over the
+paper is met on all three paper clips, but the object itself is reproduced at about 20 dB, not 26-30.
 
-The reconstruction beats the frame-0 lift on every clip (whole frames +7.5, +9.4, +8.7 dB; object pixels +5.9,
-+9.1, +9.0 dB), most on car-turn, whose side and back the lift never saw (its PSNR still falls from 34.3 dB at
-frame 0 to 25.9 at the end, where the fit is blurriest). It is slightly worse than the lift at frame 0 itself
-on car-shadow (27.7 vs 28.1 dB): one set of colours is fitted to all frames. The held-out row is within 0.15 dB
-of the fit on every frame, and the even-frame fit scores the same on the frames it saw and on those it did not
-(gap ≤ 0.25 dB): it does not memorise frames. That is no test of unseen sides (odd frames lie between seen ones),
-and 600 iterations over 40-80 frames (8-15 visits each, at a working long side of 480 px) leave the fit far from
-being able to memorise.
+Since the run of 2026-12-01 the reconstruction fits the frames at their own size (`max_side` 480 → 960) and
+its colours are SH of degree 1 turned with the object. Whole frames / object pixels, before → now:
+car-shadow 29.78 / 17.48 → 31.61 / 19.69 dB, car-turn 28.98 / 18.11 → 29.90 / 19.71, train 26.32 / 20.22 →
+26.27 / 20.70, backpack 14.11 / 10.14 → 14.77 / 11.10; SSIM 0.978 → 0.983, 0.962 → 0.967, 0.948 → 0.950;
+LPIPS 0.030 → 0.019, 0.056 → 0.043, 0.101 → 0.083 (the earlier run was on another machine).
+
+The reconstruction beats the frame-0 lift on every clip (whole frames +9.1, +10.3, +9.1 dB; object pixels
++8.3, +11.0, +10.4 dB), most on car-turn, whose side and back the lift never saw (its PSNR still falls from
+34.4 dB at frame 0 to 25.4 at the end). At frame 0 itself the lift, which is that frame, is better (car-shadow
+30.3 vs 28.2, car-turn 37.0 vs 34.4, train 28.1 vs 25.5 dB): one set of colours is fitted to all frames. The
+held-out row is within 0.1 dB of the fit on every frame, and the even-frame fit scores nearly the same on the
+frames it saw and on those it did not (gap ≤ 0.35 dB): it does not memorise frames. That is no test of unseen
+sides (odd frames lie between seen ones).
 
 Targets (issue 15 §3): car-shadow and train meet all of them. Car-turn meets its PSNR target (paper + 3 dB =
-28.88) and the 28.9 dB floor by 0.1 dB only, and misses SSIM (0.962 vs 0.98) and LPIPS (0.056 vs 0.02): its
-render is too soft. The frame-0 rows repeat the earlier page for the DAVIS clips (to 0.01 dB); the backpack's
-frame-0 row moved (11.03 → 10.63 dB, fidelity 0.765 → 0.708), most likely with the extraction changes since that
-page (commit 4e95741), not investigated.
+28.88) and the 28.9 dB floor by 1.0 dB, and misses SSIM (0.967 vs 0.98) and LPIPS (0.043 vs 0.02): its render
+is still too soft. The frame-0 rows moved since the last page (car-shadow 22.27 → 22.52, car-turn 19.58 →
+19.57, train 17.60 → 17.20, backpack 10.63 → 11.07 dB), with the lift and extraction changes since then.
 
 What the contact sheets show (`CLIP_sheet.png` under the output folder; one frame of each below). *car-shadow*:
-shape, windows, tail light and plate are right, but the side panels are blotchy (grey and white patches and
-dark streaks), worst in the last, sunlit frames: the car drives from shade into sunlight and each Gaussian has
-one colour (SH degree 0); the front wheel and its arch are smeared (wheels turn, so they are not rigid with the
-body). *car-turn*: the side and the spare wheel that the lift cannot show are there, but grille, headlights and
-wheels are blurred, the windscreen is grainy, and in the last frames the front corner is a white-grey haze with
-dark streaks hanging below the body. *train*: the four parts stay joined and follow the curve; the render is
-soft (bogies, couplings, the roof rails of the rear car and the engine's chimney washed out) with a faint
-halo at the rear car's end. *backpack*: broken. Already at frame 0 the render does not match the source (10.7 dB
-against the lift's 29.4): the bag is a spray of blue needle-shaped Gaussians beside where it should be and the
-person is a dark blur. Its automatic masks take in the person holding it for part of the clip, who does not
-move with the bag, so no single rigid object fits all frames and the fit settles on one that matches none; its
-higher mean than the lift's comes from the lift leaving the view late in the clip. On every clip the even-frame
-fit looks like the fit on every frame.
+shape, windows, tail light, plate and roof rails are right, but the front door and wing are blotchy (white and
+grey patches, dark streaks), worst in the last, sunlit frames: the car drives from shade into sunlight, a
+change over time that colours depending on the viewing direction cannot follow; the front wheel is smeared
+(wheels turn, so they are not rigid with the body). *car-turn*: the side, the windows and the spare wheel that
+the lift cannot show are there, but grille, headlights and wheels are blurred, and in the last frames dark
+blotches hang around the spare wheel and the rear bumper. *train*: the four parts stay joined and follow the
+curve; bogies and couplings are soft, and the rear car's end is smeared. *backpack*: broken, as before: its
+automatic masks take in the person holding it for part of the clip, who does not move with the bag, so no
+single rigid object fits all frames; the bag is a spray of needle-shaped Gaussians and the person a dark
+blur. On every clip the even-frame fit looks like the fit on every frame.
 
-Time: the reconstruction (`reconstruct_object`, 600 iterations) takes 43, 38, 81 and 22 s on every frame and 31,
-34, 47 and 23 s on the even frames (car-shadow, car-turn, train, backpack); the rest of an eval-self run is the
-extraction (the train's 4 parts: about 170 s), LPIPS (about 0.6 s a frame) and motion fidelity."""
+Time: the reconstruction (`reconstruct_object`, 600 iterations) takes 16, 21, 32 and 15 s on every frame and
+16, 19, 30 and 13 s on the even frames (car-shadow, car-turn, train, backpack); the rest of an eval-self run is
+the extraction, LPIPS and motion fidelity."""
 
 
 def report(results: dict[str, dict[str, dict]], out: Path) -> str:
@@ -310,9 +311,10 @@ def report(results: dict[str, dict[str, dict]], out: Path) -> str:
         "- *reconstruction* (`--target reconstruction`, the default): the source object fitted as 3D Gaussians",
         "  to **every** frame of the clip (`marionette reconstruct`: silhouette lifts of 4 frames moved back by",
         "  the prior's poses, then 600 Adam steps on the differentiable rasterizer, one frame each, L1 on the",
-        "  object composited on white plus an alpha-vs-mask term, 3DGS clone/split and pruning, ≤ 12000",
-        "  Gaussians, frames cropped to the object at a working long side of 480 px); each part is moved by its",
-        "  poses. It is scored on the frames it was fitted to, so the next row checks it on frames it never saw.",
+        "  object composited on white plus an alpha-vs-mask term, colours as SH of degree 1, 3DGS clone/split and",
+        "  pruning, ≤ 12000 Gaussians, frames cropped to the object at their own size, up to a long side of 960",
+        "  px); each part is moved by its poses. It is scored on the frames it was fitted to, so the next row",
+        "  checks it on frames it never saw.",
         "- *held-out*: the same, fitted on the even frames only (`frames_used` = even indices; the prior still",
         "  comes from every frame), scored on the odd frames with the prior's poses.",
         "- *frame0* (`--target frame0`, the paper's single-image setting): source frame 0 with its mask lifted",
