@@ -19,9 +19,17 @@ class Adam:
         self.step += 1
         c1, c2 = 1 - self.b1 ** self.step, 1 - self.b2 ** self.step
         for k, g in grads.items():
-            self.m[k] = self.b1 * self.m[k] + (1 - self.b1) * g
-            self.v[k] = self.b2 * self.v[k] + (1 - self.b2) * g * g
-            params[k] -= (lrs[k] * (self.m[k] / c1) / (np.sqrt(self.v[k] / c2) + self.eps)).astype(params[k].dtype)
+            m, v = self.m[k], self.v[k]  # updated in place: the same arithmetic without new arrays
+            m *= self.b1
+            m += (1 - self.b1) * g
+            v *= self.b2
+            v += (1 - self.b2) * g * g
+            step = m / c1
+            step *= lrs[k]
+            scale = np.sqrt(v / c2)
+            scale += self.eps
+            step /= scale
+            params[k] -= step.astype(params[k].dtype)
 
     def reindex(self, index: np.ndarray, fresh: int) -> None:
         """Keep rows ``index`` and append ``fresh`` zero rows."""

@@ -40,7 +40,7 @@ from ..prior import SpatPrior
 from ..progress import ProgressCallback
 from ..render import render
 from ..render.backward import render_with_grad
-from ..render.sh import sh_rotations
+from ..render.sh import rotate_sh
 from ._init import initial_gaussians, pose_gaussians
 from ._views import FitView, make_view
 
@@ -185,11 +185,8 @@ def _loss_and_grads(params: dict, parts: np.ndarray, view: FitView, poses: np.nd
     posed_means = np.einsum("nij,nj->ni", rot, g0.means.astype(np.float64)) + poses[parts, :3, 3]
     left = _left_matrix(q_pose)[parts]  # (N, 4, 4)
     posed_quats = np.einsum("nij,nj->ni", left, g0.quats.astype(np.float64))
-    turn = sh_rotations(poses[:, :3, :3], 4)[:, 1:, 1:]  # (K, 3, 3): each part's band-1 turn
-    posed_rest = np.einsum("nij,njc->nic", turn[parts], params["rest"])  # (N, 3, 3)
     posed = Gaussians(posed_means.astype(np.float32), posed_quats.astype(np.float32), g0.log_scales,
-                      g0.opacity_logits,
-                      np.concatenate([params["dc"][:, None], posed_rest], axis=1).astype(np.float32))
+                      g0.opacity_logits, rotate_sh(g0.sh, poses[:, :3, :3], parts))
     out = render_with_grad(posed, view.camera, (1.0, 1.0, 1.0))
     res = out.output.image - view.target  # (H, W, 3)
     a_res = out.output.alpha - view.mask  # (H, W)
@@ -203,7 +200,8 @@ def _loss_and_grads(params: dict, parts: np.ndarray, view: FitView, poses: np.nd
     return loss, {"means": g_means, "quats": g_quats, "log_scales": grads.log_scales.astype(np.float64),
                   "logits": grads.opacity_logits.astype(np.float64),
                   "dc": grads.sh[:, 0].astype(np.float64),
-                  "rest": np.einsum("nji,njc->nic", turn[parts], grads.sh[:, 1:].astype(np.float64))  # Mᵀ g
+                  # The SH turn is orthogonal: its transpose, the gradient's, is the inverse turn's.
+                  "rest": rotate_sh(grads.sh, np.swapaxes(poses[:, :3, :3], 1, 2), parts)[:, 1:].astype(np.float64)
                   }, screen
 
 
