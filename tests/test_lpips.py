@@ -110,7 +110,8 @@ def test_eval_self_reports_lpips_per_frame_when_weights_are_present(tmp_path, mo
     (tmp_path / "masks").mkdir()
     for t, m in enumerate(scene.masks):
         write_image(tmp_path / "masks" / f"{t:05d}.png", m)
-    metrics = eval_self(tmp_path / "frames", tmp_path / "masks", tmp_path / "out", fidelity=False)
+    # The frame-0 target: which target is rendered does not matter to how LPIPS is reported.
+    metrics = eval_self(tmp_path / "frames", tmp_path / "masks", tmp_path / "out", fidelity=False, target="frame0")
     rendered = np.stack(imageio.mimread(tmp_path / "out" / "video.mp4", memtest=False))
     reference = np.where(scene.masks[..., None], scene.frames, 255).astype(np.uint8)
     model = LPIPS(weights)
