@@ -44,6 +44,8 @@ def test_band_matrices_are_orthogonal_and_compose():
     np.testing.assert_allclose(m1 @ m1.T, np.eye(16), atol=1e-12)
     np.testing.assert_allclose(m2 @ m1, m21, atol=1e-12)
     np.testing.assert_allclose(sh_rotations(np.eye(3)[None], 16)[0], np.eye(16), atol=1e-12)
+    # Band 1 is exact: the rotation's own entries, permuted and signed, with no solve in between.
+    np.testing.assert_array_equal(np.sort(np.abs(m1[1:4, 1:4]).ravel()), np.sort(np.abs(r1).ravel()))
     band_mask = np.zeros((16, 16), bool)
     for lo, hi in ((0, 1), (1, 4), (4, 9), (9, 16)):
         band_mask[lo:hi, lo:hi] = True

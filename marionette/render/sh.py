@@ -84,8 +84,10 @@ def _fibonacci_sphere(k: int) -> np.ndarray:
 #: Directions on which each band's rotation is solved: any 2l + 1 directions in general position
 #: determine it, since a band is closed under rotation; 32 keep the solve well conditioned.
 _FIT_DIRS = _fibonacci_sphere(32)
-#: Coefficient ranges of the bands l = 1, 2, 3.
-_BANDS = ((1, 4), (4, 9), (9, 16))
+#: Coefficient ranges of the bands l = 2, 3 (band 1 has a closed form).
+_BANDS = ((4, 9), (9, 16))
+#: Band 1 is ``C1 (-y, z, -x)``: the direction's axes and signs, in coefficient order.
+_BAND1_AXES, _BAND1_SIGNS = np.array([1, 2, 0]), np.array([-1.0, 1.0, -1.0])
 
 
 def sh_rotations(rotations: np.ndarray, coefficients: int) -> np.ndarray:
@@ -102,11 +104,17 @@ def sh_rotations(rotations: np.ndarray, coefficients: int) -> np.ndarray:
     (P, C, C) float64
         ``M``, block diagonal by band (band 0 the identity), such that the
         coefficients ``M @ sh`` show in direction ``d`` the colour ``sh`` shows
-        in ``Rᵀ d``: ``basis(Rᵀ d) = basis(d) M``, solved on fixed directions.
+        in ``Rᵀ d``: ``basis(Rᵀ d) = basis(d) M``. Band 1 is ``R`` itself with
+        its axes permuted and signed (exact, so fits that use degree 1 do not
+        depend on the LAPACK build); bands 2 and 3 are solved on fixed
+        directions (to about 1e-15).
     """
     rotations = np.asarray(rotations, dtype=np.float64).reshape(-1, 3, 3)
     out = np.zeros((len(rotations), coefficients, coefficients))
     out[:, 0, 0] = 1.0
+    if coefficients > 1:
+        signs = _BAND1_SIGNS[:, None] * _BAND1_SIGNS[None, :]
+        out[:, 1:4, 1:4] = rotations[:, _BAND1_AXES[:, None], _BAND1_AXES[None, :]] * signs
     base = _basis(_FIT_DIRS, coefficients)  # (K, C)
     k = len(_FIT_DIRS)
     for lo, hi in _BANDS:
