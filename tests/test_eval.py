@@ -16,6 +16,7 @@ from marionette.errors import InputError
 from marionette.eval import eval_self, frame_metrics, motion_fidelity, on_white, self_target
 from marionette.eval.fidelity import track_similarity
 from marionette.io import write_image, write_video
+from marionette.reconstruct import ReconstructOptions
 from marionette.synthetic import make_scene
 from marionette.target.lift import LiftOptions, lift_image
 
@@ -36,7 +37,9 @@ def evaluated(scene, tmp_path_factory):
     for t, m in enumerate(scene.masks):
         write_image(root / "masks" / f"{t:05d}.png", m)
     with mock.patch("marionette.eval.self_eval.find_weights", return_value=None):  # LPIPS skipped here
-        metrics = eval_self(root / "frames", root / "masks", root / "out")
+        # 200 fitting steps instead of 600: 32.2 dB instead of 33.6, in half the time.
+        metrics = eval_self(root / "frames", root / "masks", root / "out",
+                            reconstruct_options=ReconstructOptions(iterations=200))
     return root, metrics
 
 
@@ -48,11 +51,11 @@ def held_frame_psnr(scene) -> float:
 
 def test_self_transfer_reproduces_the_rigid_synthetic_source(scene, evaluated):
     root, metrics = evaluated
-    # Measured: 23.1 dB, SSIM 0.93 (at 160x120 the object's outline band dominates the error);
-    # holding the masked frame 0 still scores 15.9 dB, so a wrong placement or motion fails here.
-    assert metrics["psnr"] > 21.0
-    assert metrics["psnr"] > held_frame_psnr(scene) + 5.0
-    assert metrics["ssim"] > 0.88
+    # Measured with the reconstruction target: 32.2 dB, SSIM 0.981; holding the masked frame 0 still
+    # scores 15.9 dB, so a wrong placement or motion fails here.
+    assert metrics["psnr"] > 29.0
+    assert metrics["psnr"] > held_frame_psnr(scene) + 10.0
+    assert metrics["ssim"] > 0.95
     assert metrics["motion_fidelity"] > 0.8
     assert metrics["lpips"] is None and metrics["lpips_skipped"]
     for name in ("video.mp4", "side_by_side.mp4", "metrics.png", "frames.csv", "metrics.json"):
