@@ -84,8 +84,9 @@ def _fibonacci_sphere(k: int) -> np.ndarray:
 #: Directions on which each band's rotation is solved: any 2l + 1 directions in general position
 #: determine it, since a band is closed under rotation; 32 keep the solve well conditioned.
 _FIT_DIRS = _fibonacci_sphere(32)
-#: Coefficient ranges of the bands l = 2, 3 (band 1 has a closed form).
-_BANDS = ((4, 9), (9, 16))
+#: Bands l = 2, 3 (band 1 has a closed form): coefficient range and the solve (2l + 1, K) that
+#: turns their basis on the directions into coefficients, computed once.
+_BAND_SOLVES = tuple((lo, hi, np.linalg.pinv(_basis(_FIT_DIRS, hi)[:, lo:hi])) for lo, hi in ((4, 9), (9, 16)))
 #: Band 1 is ``C1 (-y, z, -x)``: the direction's axes and signs, in coefficient order.
 _BAND1_AXES, _BAND1_SIGNS = np.array([1, 2, 0]), np.array([-1.0, 1.0, -1.0])
 
@@ -115,12 +116,10 @@ def sh_rotations(rotations: np.ndarray, coefficients: int) -> np.ndarray:
     if coefficients > 1:
         signs = _BAND1_SIGNS[:, None] * _BAND1_SIGNS[None, :]
         out[:, 1:4, 1:4] = rotations[:, _BAND1_AXES[:, None], _BAND1_AXES[None, :]] * signs
-    base = _basis(_FIT_DIRS, coefficients)  # (K, C)
     k = len(_FIT_DIRS)
-    for lo, hi in _BANDS:
+    for lo, hi, solve in _BAND_SOLVES:
         if hi > coefficients:
             break
-        solve = np.linalg.pinv(base[:, lo:hi])  # (2l + 1, K)
         for s in range(0, len(rotations), 4096):  # bounded temporaries for one rotation per Gaussian
             chunk = rotations[s:s + 4096]
             turned = (_FIT_DIRS @ chunk).reshape(-1, 3)  # rows dᵀ R = (Rᵀ d)ᵀ
