@@ -66,6 +66,12 @@ class ReconstructOptions:
         About this many cells per lift (the lift's pixel stride follows).
     max_gaussians : int
         Cap on the number of Gaussians (initial and after densification).
+    gaussians_per_pixel : float
+        A second cap, this many Gaussians per object pixel (median object area of the
+        fitting views at the working resolution): more Gaussians than the views have
+        pixels are not constrained by them, only slower. On four 128x96 and 160x120
+        synthetic clips, held-out frames come out within 0.2 dB with 12,000 Gaussians
+        (3-7 per pixel) and with 2 per pixel, which fit 1.5-2.7x faster.
     lr_means : float
         Adam step of the centres, in units of the object radius; decays to a tenth.
     lr_log_scales, lr_opacity, lr_colour, lr_quats : float
@@ -92,6 +98,7 @@ class ReconstructOptions:
     init_frames: int = 4
     init_cells: int = 2500
     max_gaussians: int = 12000
+    gaussians_per_pixel: float = 2.0
     lr_means: float = 0.002
     lr_log_scales: float = 0.01
     lr_opacity: float = 0.05
@@ -114,6 +121,8 @@ class ReconstructOptions:
             raise InputError(f"max_side must be within 16..8192, got {self.max_side}")
         if self.init_frames < 1 or self.init_cells < 16 or self.max_gaussians < 16:
             raise InputError("init_frames must be >= 1, init_cells and max_gaussians >= 16")
+        if not self.gaussians_per_pixel > 0:
+            raise InputError(f"gaussians_per_pixel must be > 0, got {self.gaussians_per_pixel}")
 
 
 @dataclass(frozen=True)
@@ -169,6 +178,12 @@ def _check_inputs(frames, masks, prior: SpatPrior, frames_used: Sequence[int] | 
     return sorted(used)
 
 
+def gaussian_budget(views: Sequence[FitView], options: ReconstructOptions) -> int:
+    """How many Gaussians the fit may hold: ``max_gaussians``, or fewer for an object of few pixels."""
+    area = float(np.median([view.mask.sum() for view in views]))
+    return int(min(options.max_gaussians, max(16.0, options.gaussians_per_pixel * area)))
+
+
 def _left_matrix(q: np.ndarray) -> np.ndarray:
     """(N, 4) quaternions ``w, x, y, z`` → (N, 4, 4) matrices ``L`` with ``q ⊗ p = L p``."""
     w, x, y, z = q.T
@@ -206,12 +221,13 @@ def _loss_and_grads(params: dict, parts: np.ndarray, view: FitView, poses: np.nd
 
 
 def _densify(params: dict, parts: np.ndarray, adam: Adam, score: np.ndarray, options: ReconstructOptions,
-             radius: float, rng: np.random.Generator) -> np.ndarray:
-    """Prune, then clone or split the highest-scoring Gaussians (3DGS Sec. 5.2), in place; the new parts (N',)."""
+             budget: int, radius: float, rng: np.random.Generator) -> np.ndarray:
+    """Prune, then clone or split the highest-scoring Gaussians (3DGS Sec. 5.2) up to ``budget`` of them, in
+    place; the new parts (N',)."""
     n = len(parts)
     opacity = 1 / (1 + np.exp(-params["logits"]))
     alive = opacity >= options.prune_opacity
-    room = max(options.max_gaussians - int(alive.sum()), 0)
+    room = max(budget - int(alive.sum()), 0)
     count = min(int(options.densify_fraction * n), room)
     chosen = np.zeros(n, bool)
     if count > 0:
@@ -281,9 +297,10 @@ def reconstruct_object(frames, masks, prior: SpatPrior, *, frames_used: Sequence
     scale = min(1.0, options.max_side / max(w, h))
     views = [make_view(t, np.asarray(frames[t]), np.asarray(masks[t], bool), prior.intrinsics, scale)
              for t in visible]
+    budget = gaussian_budget(views, options)
     picks = np.unique(np.rint(np.linspace(0, len(visible) - 1, min(options.init_frames, len(visible)))).astype(int))
     gaussians, parts = initial_gaussians(frames, masks, prior, [visible[i] for i in picks], visible,
-                                         cells=options.init_cells, max_gaussians=options.max_gaussians,
+                                         cells=options.init_cells, max_gaussians=budget,
                                          seed=options.seed)
     radius = float(np.max(prior.radii))
     params = {"means": gaussians.means.copy(), "quats": gaussians.quats.copy(),
@@ -322,7 +339,7 @@ def reconstruct_object(frames, masks, prior: SpatPrior, *, frames_used: Sequence
             losses["fit"].append(float(np.mean(block)))
             block = []
             if it + 1 <= last_densify and it + 1 < total:
-                parts = _densify(params, parts, adam, accum / np.maximum(seen, 1), options, radius, rng)
+                parts = _densify(params, parts, adam, accum / np.maximum(seen, 1), options, budget, radius, rng)
                 accum, seen = np.zeros(len(parts)), np.zeros(len(parts))
         if progress:
             progress(it + 1, total)
