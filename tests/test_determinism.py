@@ -17,6 +17,7 @@ import cv2
 import numba
 import numpy as np
 import pytest
+import threadpoolctl
 
 from marionette import pipeline
 from marionette.camera import Camera
@@ -138,12 +139,19 @@ def test_grabcut_repeats_exactly_in_one_process():
         assert np.array_equal(grabcut_mask(image), first)
 
 
-# The BLAS kernel changes the last bits of every LAPACK/BLAS result. Haswell is what some CPUs here
-# force; on an AVX2 machine it is the default kernel anyway, so Sandybridge (another x86-64 kernel,
-# other rounding) is there to make the perturbation real on every x86-64 machine.
-KERNELS = [{}, {**ONE_THREAD, "OPENBLAS_CORETYPE": "Haswell"}]
-if platform.machine() in ("x86_64", "AMD64"):
-    KERNELS.append({"OPENBLAS_CORETYPE": "Sandybridge"})
+def other_blas_kernel() -> str:
+    """An OpenBLAS kernel other than the one this machine picks by itself.
+
+    The kernel changes the last bits of every LAPACK/BLAS result. Haswell is what some CPUs here force;
+    where it is the default kernel anyway, Sandybridge (another x86-64 kernel, other rounding) makes
+    the perturbation real.
+    """
+    picked = {info.get("architecture") for info in threadpoolctl.threadpool_info() if info["user_api"] == "blas"}
+    return "Sandybridge" if "Haswell" in picked and platform.machine() in ("x86_64", "AMD64") else "Haswell"
+
+
+#: The machine's own kernel on every thread, then another kernel on one thread.
+KERNELS = [{}, {**ONE_THREAD, "OPENBLAS_CORETYPE": other_blas_kernel()}]
 
 
 def rotation_gap_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
