@@ -7,6 +7,7 @@ body and lid, ``part_masks`` per pixel), tracked by ``marionette.source.track``.
 
 from __future__ import annotations
 
+import functools
 import itertools
 from pathlib import Path
 
@@ -58,10 +59,16 @@ def turning(num_frames: int, axis, degrees: float, centre: np.ndarray, shift=(0.
     return poses
 
 
+@functools.cache
+def tracked(motion: str, seed: int):
+    """A 32-frame synthetic scene and its tracks, made once for the tests that share them (read only)."""
+    scene = make_scene(motion, seed=seed, num_frames=32)
+    return scene, track(scene.frames, scene.masks)
+
+
 @pytest.fixture(scope="module")
 def hinge():
-    scene = make_scene("hinge", seed=1, num_frames=32)
-    return scene, track(scene.frames, scene.masks)
+    return tracked("hinge", 1)
 
 
 # --- the rigid motion model ----------------------------------------------------------------------------------------
@@ -110,9 +117,9 @@ def test_hinge_gives_body_and_lid(hinge):
 
 
 def test_hinge_with_a_static_body_puts_it_in_the_static_group():
-    scene = make_scene("hinge", seed=0, num_frames=32)  # this seed's body does not move
+    scene, tracks = tracked("hinge", 0)  # this seed's body does not move
     np.testing.assert_allclose(scene.poses[0], np.tile(np.eye(4), (32, 1, 1)))
-    seg = segment_parts(track(scene.frames, scene.masks), scene.masks[0], scene.camera.K, "auto")
+    seg = segment_parts(tracks, scene.masks[0], scene.camera.K, "auto")
     assert seg.num_parts == 1
     body = scene.part_masks[0] == 0
     assert np.mean(seg.pixel_labels[body] == STATIC) > 0.9
@@ -121,8 +128,8 @@ def test_hinge_with_a_static_body_puts_it_in_the_static_group():
 
 @pytest.mark.parametrize("motion", ["oscillation", "outofplane"])
 def test_auto_finds_one_part_on_a_rigid_box(motion):
-    scene = make_scene(motion, seed=0, num_frames=32)
-    seg = segment_parts(track(scene.frames, scene.masks), scene.masks[0], scene.camera.K, "auto")
+    scene, tracks = tracked(motion, 0)
+    seg = segment_parts(tracks, scene.masks[0], scene.camera.K, "auto")
     assert seg.num_parts == 1 and rigid_groups(seg) == 1
     assert (seg.pixel_labels[scene.masks[0]] == 0).all()
 
@@ -237,8 +244,7 @@ def in_depth_units(poses: np.ndarray, depth: float) -> np.ndarray:
 
 
 def test_a_whole_object_motion_keeps_a_turning_box_one_part():
-    scene = make_scene("outofplane", seed=0, num_frames=32)
-    tracks = track(scene.frames, scene.masks)
+    scene, tracks = tracked("outofplane", 0)
     whole = in_depth_units(scene.poses[0], scene.centroids()[0, 0, 2])
     seg = segment_parts(tracks, scene.masks[0], scene.camera.K, "auto", whole=whole)
     assert seg.num_parts == 1 and (seg.pixel_labels[scene.masks[0]] == 0).all()
@@ -248,8 +254,7 @@ def test_a_whole_object_motion_keeps_a_turning_box_one_part():
 
 
 def test_a_whole_object_motion_does_not_hide_a_moving_part():
-    scene = make_scene("hinge", seed=0, num_frames=32)  # the body stays, the lid opens
-    tracks = track(scene.frames, scene.masks)
+    scene, tracks = tracked("hinge", 0)  # the body stays, the lid opens
     # What extract_prior passes: one rigid fit to the body and the lid together, a compromise.
     whole = whole_object_poses(tracks, ShapePrior.inflate(scene.masks[0], scene.camera.K))
     seg = segment_parts(tracks, scene.masks[0], scene.camera.K, "auto", whole=whole)
@@ -259,6 +264,6 @@ def test_a_whole_object_motion_does_not_hide_a_moving_part():
 
 @pytest.mark.parametrize("whole", [np.eye(4), np.full((32, 4, 4), np.nan)])
 def test_bad_whole_object_motions_are_refused(whole):
-    scene = make_scene("outofplane", seed=0, num_frames=32, size=(160, 120))
+    scene, tracks = tracked("outofplane", 0)
     with pytest.raises(InputError, match="whole must be"):
-        segment_parts(track(scene.frames, scene.masks), scene.masks[0], scene.camera.K, "auto", whole=whole)
+        segment_parts(tracks, scene.masks[0], scene.camera.K, "auto", whole=whole)
