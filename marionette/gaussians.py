@@ -104,6 +104,10 @@ class Gaussians:
         """The same Gaussians moved to ``means`` (N, 3)."""
         return replace(self, means=means)
 
+    def with_sh(self, sh: np.ndarray) -> "Gaussians":
+        """The same Gaussians with colours ``sh`` (N, C, 3)."""
+        return replace(self, sh=sh)
+
     def turned(self, quats: np.ndarray, labels: np.ndarray | None = None) -> "Gaussians":
         """Orientations pre-multiplied by unit quaternions ``w, x, y, z``; means unchanged.
 

@@ -31,7 +31,6 @@ from ..reconstruct import ReconstructOptions, reconstruct_object
 from ..segment import Prompt
 from ..source import ExtractOptions, extract_prior
 from ..target.lift import LiftedTarget, LiftOptions, lift_image
-from ..trajectory import Trajectory
 from .fidelity import motion_fidelity
 from .lpips import LPIPS, find_weights
 from .metrics import LPIPS_SKIPPED, frame_metrics, on_white
@@ -138,8 +137,7 @@ def eval_self(source: str | Path, masks: str | Path | None = None, output_dir: s
         with reporter.stage("reconstruction", reconstruct_options.iterations) as progress:
             rec = reconstruct_object(frames, mask_stack, prior, options=reconstruct_options, progress=progress)
         gaussians, camera = rec.gaussians, Camera(prior.intrinsics, np.eye(4), w, h)
-        posed = [rec.at(prior, i).means for i in range(t)]
-        trajectory = Trajectory(np.stack(posed), prior.poses[:, :, :3, :3].transpose(1, 0, 2, 3), rec.parts)
+        trajectory = rec.trajectory(prior)
     pipeline.render_video(files["video"], gaussians, trajectory, camera, fps=video.fps, reporter=reporter)
     rendered = read_video(files["video"]).frames[:, :h, :w]  # as written: codec loss included
     reference = on_white(frames, mask_stack)

@@ -41,8 +41,20 @@ from ..progress import ProgressCallback
 from ..render import render
 from ..render.backward import render_with_grad
 from ..render.sh import rotate_sh
+from ..trajectory import Trajectory
 from ._init import initial_gaussians, pose_gaussians
 from ._views import FitView, make_view
+from .shading import (
+    Lighting,
+    ShadedTrajectory,
+    Shading,
+    factor_backward,
+    shade_backward,
+    shade_factors,
+    shade_sh,
+    tangent,
+    unit_rows,
+)
 
 __all__ = ["ReconstructOptions", "Reconstruction", "reconstruct_object"]
 
@@ -89,6 +101,11 @@ class ReconstructOptions:
         Gaussians larger than this (largest std, in object radii) are split, smaller ones cloned.
     prune_opacity : float
         Gaussians below this opacity are removed.
+    shading : bool
+        Fit a normal per Gaussian and one light fixed in the world (:mod:`.shading`), so
+        the shading changes as the object's faces turn towards or away from the light.
+    lr_normals, lr_light, lr_diffuse : float
+        Adam steps of the normals, the light direction and the diffuse share's logit.
     seed : int
         Seeds the frame order and the samples of splits and subsampling.
     """
@@ -110,6 +127,10 @@ class ReconstructOptions:
     densify_fraction: float = 0.05
     split_scale: float = 0.05
     prune_opacity: float = 0.02
+    shading: bool = True
+    lr_normals: float = 0.01
+    lr_light: float = 0.01
+    lr_diffuse: float = 0.05
     seed: int = 0
 
     def check(self) -> None:
@@ -133,21 +154,39 @@ class Reconstruction:
     ----------
     gaussians : Gaussians, N of them (SH degree 1, in the frame-0 object frame).
     parts : (N,) int32, each Gaussian's rigid part (index into the prior's parts).
+        Their colours are as the object looks unturned (shaded at rest, when
+        ``shading`` is set): what a ``.ply`` of it holds.
     losses : dict
         ``initial`` and ``final`` mean loss over the fitting frames, ``fit``
         (mean loss of each ``densify_every`` block of iterations), and the
         Gaussian counts ``gaussians_initial`` and ``gaussians_final``.
     frames_used : list of int, the fitting frames.
+    shading : Shading or None
+        Albedo, normals and light, when the fit modelled the shading.
     """
 
     gaussians: Gaussians
     parts: np.ndarray
     losses: dict = field(default_factory=dict)
     frames_used: list = field(default_factory=list)
+    shading: Shading | None = None
 
     def at(self, prior: SpatPrior, t: int) -> Gaussians:
-        """The Gaussians at frame ``t``: part k moved by ``prior.poses[k, t]``."""
-        return pose_gaussians(self.gaussians, self.parts, prior.poses[:, t])
+        """The Gaussians at frame ``t``: part k moved by ``prior.poses[k, t]``, shaded as it then faces the light."""
+        poses = prior.poses[:, t]
+        if self.shading is None:
+            return pose_gaussians(self.gaussians, self.parts, poses)
+        posed = pose_gaussians(self.gaussians.with_sh(self.shading.albedo), self.parts, poses)
+        return posed.with_sh(self.shading.sh_at(poses[:, :3, :3], self.parts, posed.sh))
+
+    def trajectory(self, prior: SpatPrior) -> Trajectory:
+        """The Gaussians over the prior's frames (shaded at each when ``shading`` is set), for rendering."""
+        means = np.stack([pose_gaussians(self.gaussians, self.parts, prior.poses[:, t]).means
+                          for t in range(prior.num_frames)])
+        rotations = prior.poses[:, :, :3, :3].transpose(1, 0, 2, 3)
+        if self.shading is None:
+            return Trajectory(means, rotations, self.parts)
+        return ShadedTrajectory(means, rotations, self.parts, self.shading)
 
     def render_frame(self, prior: SpatPrior, t: int, camera: Camera | None = None) -> np.ndarray:
         """(H, W, 3) float32 render of frame ``t`` on white, with the prior's camera by default."""
@@ -191,17 +230,43 @@ def _left_matrix(q: np.ndarray) -> np.ndarray:
                      np.stack([y, z, w, -x], -1), np.stack([z, -y, x, w], -1)], axis=1)
 
 
+def _lighting(light: dict) -> Lighting:
+    """The light of the global parameters ``direction`` (1, 3) (any length) and ``diffuse`` (1,) (a logit)."""
+    return Lighting(unit_rows(light["direction"][0]), float(1 / (1 + np.exp(-light["diffuse"][0]))))
+
+
+def _initial_normals(gaussians: Gaussians, parts: np.ndarray) -> np.ndarray:
+    """(N, 3) float64: each Gaussian's shortest axis (a surfel's normal), turned away from its part's centre."""
+    q = gaussians.quats.astype(np.float64)
+    rot = quaternion_to_matrix(q / np.linalg.norm(q, axis=1, keepdims=True))
+    axis = rot[np.arange(len(q)), :, np.argmin(gaussians.log_scales, axis=1)]
+    means = gaussians.means.astype(np.float64)
+    centres = np.stack([means[parts == k].mean(axis=0) if (parts == k).any() else np.zeros(3)
+                        for k in range(int(parts.max()) + 1)])
+    outward = np.sum(axis * (means - centres[parts]), axis=1)
+    return axis * np.where(outward < 0, -1.0, 1.0)[:, None]
+
+
 def _loss_and_grads(params: dict, parts: np.ndarray, view: FitView, poses: np.ndarray, q_pose: np.ndarray,
-                    mask_weight: float) -> tuple[float, dict, np.ndarray]:
-    """Loss of one view, gradients per parameter, and each Gaussian's screen-space gradient norm (N,)."""
+                    mask_weight: float, light: dict | None = None) -> tuple[float, dict, np.ndarray]:
+    """Loss of one view, gradients per parameter, and each Gaussian's screen-space gradient norm (N,).
+
+    With ``light`` (see :func:`_lighting`) the colours are shaded and the gradients include
+    ``normals`` and, under ``light``, ``direction`` and ``diffuse``.
+    """
     g0 = Gaussians(params["means"], params["quats"], params["log_scales"], params["logits"],
                    np.concatenate([params["dc"][:, None], params["rest"]], axis=1))
     rot = poses[parts, :3, :3]  # (N, 3, 3)
     posed_means = np.einsum("nij,nj->ni", rot, g0.means.astype(np.float64)) + poses[parts, :3, 3]
     left = _left_matrix(q_pose)[parts]  # (N, 4, 4)
     posed_quats = np.einsum("nij,nj->ni", left, g0.quats.astype(np.float64))
+    turned_sh = rotate_sh(g0.sh, poses[:, :3, :3], parts)
+    if light is not None:
+        lighting = _lighting(light)
+        normals = np.einsum("nij,nj->ni", rot, unit_rows(params["normals"].astype(np.float64)))
+        factors = shade_factors(normals, lighting)
     posed = Gaussians(posed_means.astype(np.float32), posed_quats.astype(np.float32), g0.log_scales,
-                      g0.opacity_logits, rotate_sh(g0.sh, poses[:, :3, :3], parts))
+                      g0.opacity_logits, turned_sh if light is None else shade_sh(turned_sh, factors))
     out = render_with_grad(posed, view.camera, (1.0, 1.0, 1.0))
     res = out.output.image - view.target  # (H, W, 3)
     a_res = out.output.alpha - view.mask  # (H, W)
@@ -212,12 +277,20 @@ def _loss_and_grads(params: dict, parts: np.ndarray, view: FitView, poses: np.nd
     g_quats = np.einsum("nji,nj->ni", left, grads.quats.astype(np.float64))  # Lᵀ ∂L/∂q'
     depth = np.maximum(posed_means[:, 2], 1e-6)
     screen = np.linalg.norm(grads.means, axis=1) * depth / view.camera.fx  # ∂L per pixel of motion
-    return loss, {"means": g_means, "quats": g_quats, "log_scales": grads.log_scales.astype(np.float64),
-                  "logits": grads.opacity_logits.astype(np.float64),
-                  "dc": grads.sh[:, 0].astype(np.float64),
-                  # The SH turn is orthogonal: its transpose, the gradient's, is the inverse turn's.
-                  "rest": rotate_sh(grads.sh, np.swapaxes(poses[:, :3, :3], 1, 2), parts)[:, 1:].astype(np.float64)
-                  }, screen
+    g_sh = grads.sh
+    if light is not None:
+        g_sh, g_factors = shade_backward(turned_sh, factors, g_sh)
+        g_normals, g_direction, g_diffuse = factor_backward(normals, lighting, g_factors)
+    result = {"means": g_means, "quats": g_quats, "log_scales": grads.log_scales.astype(np.float64),
+              "logits": grads.opacity_logits.astype(np.float64),
+              "dc": g_sh[:, 0].astype(np.float64),
+              # The SH turn is orthogonal: its transpose, the gradient's, is the inverse turn's.
+              "rest": rotate_sh(g_sh, np.swapaxes(poses[:, :3, :3], 1, 2), parts)[:, 1:].astype(np.float64)}
+    if light is not None:
+        result["normals"] = tangent(np.einsum("nji,nj->ni", rot, g_normals), params["normals"])
+        result["direction"] = tangent(g_direction, light["direction"][0])[None]
+        result["diffuse"] = np.array([g_diffuse * lighting.diffuse * (1 - lighting.diffuse)])
+    return loss, result, screen
 
 
 def _densify(params: dict, parts: np.ndarray, adam: Adam, score: np.ndarray, options: ReconstructOptions,
@@ -247,7 +320,7 @@ def _densify(params: dict, parts: np.ndarray, adam: Adam, score: np.ndarray, opt
             offset = np.einsum("nij,nj->ni", rot, rng.normal(size=std.shape) * std)
             new_rows["means"].append((params["means"][split_idx] + offset).astype(np.float32))
             new_rows["log_scales"].append(params["log_scales"][split_idx] - np.float32(np.log(1.6)))
-            for k in ("quats", "logits", "dc", "rest"):
+            for k in params.keys() - {"means", "log_scales"}:
                 new_rows[k].append(params[k][split_idx])
     clone_idx = np.flatnonzero(clone & alive)
     if len(clone_idx):
@@ -306,13 +379,19 @@ def reconstruct_object(frames, masks, prior: SpatPrior, *, frames_used: Sequence
     params = {"means": gaussians.means.copy(), "quats": gaussians.quats.copy(),
               "log_scales": gaussians.log_scales.copy(), "logits": gaussians.opacity_logits.copy(),
               "dc": gaussians.sh[:, 0].copy(), "rest": np.zeros((len(gaussians), 3, 3), np.float32)}
+    light = None
+    if options.shading:
+        params["normals"] = _initial_normals(gaussians, parts)
+        # Start from a faint light from the camera: colours as observed, gradients for every term.
+        light = {"direction": np.array([[0.0, 0.0, -1.0]]), "diffuse": np.array([np.log(0.1 / 0.9)])}
+        light_adam = Adam(light)
     poses = {t: prior.poses[:, t] for t in visible}
     q_pose = {t: matrix_to_quaternion(prior.poses[:, t, :3, :3]) for t in visible}
     adam = Adam(params)
 
     def mean_loss() -> float:
         return float(np.mean([_loss_and_grads(params, parts, v, poses[v.frame], q_pose[v.frame],
-                                              options.mask_weight)[0] for v in views]))
+                                              options.mask_weight, light)[0] for v in views]))
 
     losses: dict = {"initial": mean_loss(), "gaussians_initial": len(parts), "fit": []}
     accum = np.zeros(len(parts))
@@ -326,13 +405,16 @@ def reconstruct_object(frames, masks, prior: SpatPrior, *, frames_used: Sequence
             order = list(rng.permutation(len(views)))
         view = views[order.pop()]
         loss, grads, screen = _loss_and_grads(params, parts, view, poses[view.frame], q_pose[view.frame],
-                                              options.mask_weight)
+                                              options.mask_weight, light)
         block.append(loss)
         decay = 0.1 ** (it / max(total - 1, 1))
         lrs = {"means": options.lr_means * radius * decay, "quats": options.lr_quats,
                "log_scales": options.lr_log_scales, "logits": options.lr_opacity, "dc": options.lr_colour,
-               "rest": options.lr_colour / 20}
-        adam.update(params, grads, lrs)
+               "rest": options.lr_colour / 20, "normals": options.lr_normals}
+        adam.update(params, {k: grads[k] for k in params}, lrs)
+        if light is not None:
+            light_adam.update(light, {k: grads[k] for k in light},
+                              {"direction": options.lr_light, "diffuse": options.lr_diffuse})
         accum += screen
         seen += screen > 0
         if (it + 1) % options.densify_every == 0:
@@ -352,7 +434,13 @@ def reconstruct_object(frames, masks, prior: SpatPrior, *, frames_used: Sequence
         parts = parts[keep]
     losses["final"] = mean_loss()
     losses["gaussians_final"] = len(parts)
+    albedo = np.concatenate([params["dc"][:, None], params["rest"]], axis=1)
+    shading = None
+    if light is not None:
+        shading = Shading(albedo, unit_rows(params["normals"]), _lighting(light))
+        losses["light"] = {"direction": shading.lighting.direction.tolist(), "diffuse": shading.lighting.diffuse}
     result = Gaussians(params["means"], params["quats"], params["log_scales"], params["logits"],
-                       np.concatenate([params["dc"][:, None], params["rest"]], axis=1))
+                       albedo if shading is None else shading.sh_at(np.eye(3)[None], np.zeros(len(parts), int),
+                                                                     albedo))
     result.check_finite()
-    return Reconstruction(result, parts.astype(np.int32), losses, visible)
+    return Reconstruction(result, parts.astype(np.int32), losses, visible, shading)
