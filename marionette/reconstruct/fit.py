@@ -21,7 +21,10 @@ every frame: an object turning under a fixed light and camera changes its
 shading with the direction it is seen from, which a constant colour can only
 average (synthetic scenes, held-out masked PSNR +0.7 to +1.6 dB on the turning
 ones; ``benchmarks/bench_reconstruct.py``). The degree-1 terms step at a
-twentieth of the base colour's rate, as 3DGS's do.
+twentieth of the base colour's rate, as 3DGS's do. Those colours are an
+albedo, shaded by one light fixed in the world through a normal per Gaussian
+(:mod:`.shading`): turning about the viewing direction changes an object's
+shading but not the direction it is seen from, which SH alone cannot follow.
 """
 
 from __future__ import annotations
