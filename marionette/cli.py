@@ -629,6 +629,12 @@ def reconstruct(source: Annotated[Path, typer.Argument(help="Video file or folde
             session.reporter.detail(f"  loss over iterations {i * block + 1}-{min((i + 1) * block, iterations)}: "
                                     f"{value:.5f}")
         session.reporter.detail(f"  loss at end: {losses['final']:.5f} ({losses['gaussians_final']} Gaussians)")
+        if result.shading is not None:
+            light = result.shading.lighting
+            session.figures.update(light_direction=[round(float(v), 4) for v in light.direction],
+                                   light_diffuse=round(light.diffuse, 4))
+            session.reporter.detail(f"  light: towards ({', '.join(f'{v:.2f}' for v in light.direction)}) in the "
+                                    f"frame-0 camera's axes, diffuse share {light.diffuse:.2f}")
 
 
 @app.command("eval-self")

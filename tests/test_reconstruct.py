@@ -130,6 +130,8 @@ def test_cli_writes_ply_with_parts(source_dir, tmp_path, capsys):
     assert parts is not None and parts.shape == (len(g),) and set(parts.tolist()) == {0}
     summary = json.loads(capsys.readouterr().out)
     assert summary["figures"]["frames_fitted"] == T // 2 and summary["outputs"]["object"] == str(out)
+    light = summary["figures"]["light_direction"]
+    assert np.linalg.norm(light) == pytest.approx(1.0, abs=1e-3) and 0 < summary["figures"]["light_diffuse"] < 1
 
 
 @pytest.mark.parametrize("prior, masks, iterations, output, message", [
