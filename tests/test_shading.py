@@ -70,7 +70,7 @@ def test_an_object_turning_under_a_fixed_light_is_fitted_with_it():
     """The synthetic renderer lights its objects from a light fixed to the camera; turning about the
     optical axis, the faces change their shading but not the direction they are seen from. The fit
     with shading finds a light above, left and in front (the renderer's) and beats the fit without."""
-    scene = make_scene("inplane", num_frames=12, size=(160, 120), seed=0)
+    scene = make_scene("inplane", num_frames=12, size=(128, 96), seed=0)
     prior = scene.ground_truth_prior()
     from marionette.eval.metrics import masked_psnr
 
@@ -78,7 +78,7 @@ def test_an_object_turning_under_a_fixed_light_is_fitted_with_it():
     held = {}
     for shading in (False, True):
         rec = reconstruct_object(scene.frames, scene.masks, prior, frames_used=range(0, 12, 2),
-                                 options=ReconstructOptions(iterations=300, shading=shading))
+                                 options=ReconstructOptions(iterations=200, shading=shading))
         held[shading] = np.mean([masked_psnr(rec.render_frame(prior, t), scene.frames[t], scene.masks[t])
                                  for t in odd])
     assert rec.shading is not None and rec.shading.lighting.diffuse > 0.2
