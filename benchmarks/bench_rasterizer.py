@@ -92,17 +92,20 @@ def time_stages(gaussians: Gaussians, camera: Camera, runs: int) -> dict[str, fl
     return out
 
 
-def machine_info() -> dict[str, str]:
-    cpu = platform.processor() or platform.machine()
+def cpu_name() -> str:
+    """The CPU's model name (Linux), else what ``platform`` knows."""
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
             if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
+                return line.split(":", 1)[1].strip()
     except OSError:
         pass
+    return platform.processor() or platform.machine()
+
+
+def machine_info() -> dict[str, str]:
     return {
-        "CPU": cpu,
+        "CPU": cpu_name(),
         "cores (os.cpu_count)": str(os.cpu_count()),
         "numba threads": str(numba.get_num_threads()),
         "numba threading layer": numba.threading_layer(),
