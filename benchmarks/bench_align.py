@@ -55,7 +55,7 @@ def run_scene(motion: str, frames: int) -> list[tuple[str, list, float]]:
         rec = reconstruct_object(scene.frames, scene.masks, model_prior, options=rec_options)
         t0 = time.perf_counter()
         result = align_poses(rec.gaussians, rec.parts, scene.frames, scene.masks, prior.intrinsics, start,
-                             options=AlignOptions())
+                             shading=rec.shading, options=AlignOptions())
         seconds = (time.perf_counter() - t0) / max(len(result.frames), 1)
         rows.append((label, part_errors(result.poses, scene.poses), seconds))
 

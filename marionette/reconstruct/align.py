@@ -43,6 +43,7 @@ from ..render import render
 from ..render.backward import render_with_grad
 from ._init import pose_gaussians
 from ._views import FitView, make_view
+from .shading import Shading, shade_sh
 
 __all__ = ["AlignOptions", "Alignment", "align_poses", "align_frame", "frame_pyramid", "frame_loss", "move_parts",
            "rms_radius", "twist_loss", "twist_gradient"]
@@ -264,9 +265,16 @@ def frame_pyramid(image: np.ndarray, mask: np.ndarray, K: np.ndarray, scale: flo
     return [make_view(t, image, mask, K, scale / 2 ** level) for level in reversed(range(levels))]
 
 
+def _lit(gaussians: Gaussians, parts: np.ndarray, poses: np.ndarray, shading: Shading | None) -> Gaussians:
+    """The Gaussians at rest coloured as they look with their parts at poses (K, 4, 4) (unchanged without shading)."""
+    if shading is None:
+        return gaussians
+    return gaussians.with_sh(shade_sh(shading.albedo, shading.factors_at(poses[:, :3, :3], parts)))
+
+
 def align_poses(gaussians: Gaussians, parts: np.ndarray, frames, masks, K: np.ndarray, poses: np.ndarray, *,
                 frames_to_align: Sequence[int] | None = None, movable: np.ndarray | None = None,
-                options: AlignOptions = AlignOptions(),
+                shading: Shading | None = None, options: AlignOptions = AlignOptions(),
                 progress: ProgressCallback | None = None) -> Alignment:
     """Refine per-part poses photometrically against the frames.
 
@@ -283,6 +291,12 @@ def align_poses(gaussians: Gaussians, parts: np.ndarray, frames, masks, K: np.nd
         Default: every frame but 0 (whose poses define the model's frame) where the object is seen.
     movable : (K,) bool, optional
         Parts whose poses may change (default all).
+    shading : Shading, optional
+        A shaded reconstruction's (``Reconstruction.shading``): each frame is
+        compared with the Gaussians shaded as they face the light at that
+        frame's starting poses, then, from the refined poses, shaded as those
+        face it on the finest level again (the shading's own pose gradient is
+        left out). Without it the Gaussians keep their own colours.
     options : AlignOptions
     progress : callable ``(done, total)``, optional, after each frame.
 
@@ -308,8 +322,11 @@ def align_poses(gaussians: Gaussians, parts: np.ndarray, frames, masks, K: np.nd
         mask = np.asarray(masks[t], bool)
         if mask.any():
             pyramid = frame_pyramid(np.asarray(frames[t]), mask, K, scale, options.levels, t)
-            poses[:, t], before[t], after[t] = align_frame(gaussians, parts, poses[:, t], pyramid, movable,
-                                                           max(radius, 1e-9), options)
+            poses[:, t], before[t], after[t] = align_frame(_lit(gaussians, parts, poses[:, t], shading), parts,
+                                                           poses[:, t], pyramid, movable, max(radius, 1e-9), options)
+            if shading is not None:  # lit as the refined pose faces the light, the finest level once more
+                poses[:, t], _, after[t] = align_frame(_lit(gaussians, parts, poses[:, t], shading), parts,
+                                                       poses[:, t], pyramid[-1:], movable, max(radius, 1e-9), options)
             done.append(t)
         if progress:
             progress(i + 1, len(todo))

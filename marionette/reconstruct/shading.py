@@ -58,11 +58,14 @@ class Shading:
     normals: np.ndarray
     lighting: Lighting
 
+    def factors_at(self, rotations: np.ndarray, parts: np.ndarray) -> np.ndarray:
+        """Shading factors (N,) float64 of the Gaussians with their parts (N,) turned by ``rotations`` (K, 3, 3)."""
+        return shade_factors(np.einsum("nij,nj->ni", rotations[parts], self.normals), self.lighting)
+
     def sh_at(self, rotations: np.ndarray, parts: np.ndarray, turned_albedo: np.ndarray) -> np.ndarray:
         """SH (N, C, 3) of the Gaussians with their parts turned by ``rotations`` (K, 3, 3), given the albedo
         already turned with them (``turned_albedo`` (N, C, 3))."""
-        normals = np.einsum("nij,nj->ni", rotations[parts], self.normals)
-        return shade_sh(turned_albedo, shade_factors(normals, self.lighting))
+        return shade_sh(turned_albedo, self.factors_at(rotations, parts))
 
 
 @dataclass(frozen=True)
