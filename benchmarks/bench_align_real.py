@@ -63,8 +63,7 @@ def main() -> None:
         result = align_poses(rec.gaussians, rec.parts, frames, masks, prior.intrinsics, prior.poses,
                              shading=rec.shading)
         seconds = time.perf_counter() - t0
-        turned = [rotation_angle_deg(prior.poses[k, t, :3, :3].T @ result.poses[k, t, :3, :3])
-                  for k in range(prior.num_parts) for t in range(t_count)]
+        turned = rotation_angle_deg(np.swapaxes(prior.poses[..., :3, :3], -1, -2) @ result.poses[..., :3, :3])
         prior = dataclasses.replace(prior, poses=result.poses)
         rows.append((f"round {r}: aligned, the same model", score(rec, prior, even), score(rec, prior, odd),
                      f"{np.median(turned):.2f} / {np.max(turned):.2f}",

@@ -81,14 +81,9 @@ def run_suite(opencv: str, coretype: str) -> list[dict]:
     return rows
 
 
-def rotation_gap_deg(a: np.ndarray, b: np.ndarray) -> float:
-    """Largest angle (degrees) of R_aᵀ R_b over poses (..., 4, 4)."""
-    rel = np.swapaxes(a[..., :3, :3], -1, -2) @ b[..., :3, :3]
-    return float(np.degrees(np.arccos(np.clip((np.trace(rel, axis1=-2, axis2=-1) - 1) / 2, -1, 1))).max())
-
-
 def determinism(work: Path) -> list[dict]:
     """``extract --parts auto`` under every configuration of CONFIGS, for each motion of MOTIONS."""
+    from marionette.geometry import rotation_angle_deg
     from marionette.io import write_video
     from marionette.synthetic import make_scene
 
@@ -112,10 +107,10 @@ def determinism(work: Path) -> list[dict]:
             if reference is None:
                 reference = poses
             # the part that turns most is the hinge's lid; the rest must agree to 0.05° (test_determinism)
-            turn = [rotation_gap_deg(np.eye(4), poses[k]) for k in range(poses.shape[0])]
+            turn = [float(rotation_angle_deg(poses[k, :, :3, :3]).max()) for k in range(poses.shape[0])]
             still = [k for k in range(poses.shape[0]) if k != int(np.argmax(turn))] if motion == "hinge" else None
-            gaps = [rotation_gap_deg(reference[k], poses[k]) if k < reference.shape[0] else float("nan")
-                    for k in range(poses.shape[0])]
+            gaps = [float(rotation_angle_deg(np.swapaxes(reference[k, :, :3, :3], -1, -2) @ poses[k, :, :3, :3]).max())
+                    if k < reference.shape[0] else float("nan") for k in range(poses.shape[0])]
             rows.append({"motion": motion, "config": label, "parts": meta["num_parts"],
                          "note": meta.get("part_selection_note", ""),
                          "gap": max(gaps) if still is None else max(gaps[k] for k in still),

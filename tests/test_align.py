@@ -13,7 +13,7 @@ from marionette.gaussians import Gaussians
 from marionette.geometry import axis_angle_to_matrix, invert_transform, make_transform, rotation_angle_deg
 from marionette.reconstruct._init import pose_gaussians
 from marionette.reconstruct.align import AlignOptions, align_poses, move_parts, twist_gradient, twist_loss
-from marionette.reconstruct.shading import Lighting, Shading, shade_sh, unit_rows
+from marionette.reconstruct.shading import Lighting, Shading, unit_rows
 from marionette.render import render
 
 W, H = 192, 160
@@ -146,8 +146,7 @@ def test_a_shaded_model_aligns_to_a_frame_lit_as_it_turned():
     normals[np.arange(len(rel)), face] = np.sign(rel[np.arange(len(rel)), face])
     shading = Shading(g.sh, normals, Lighting(unit_rows(np.array([0.6, -0.5, -0.6])), 0.7))
     truth = turn([0.3, 1, 0.2], 25)[None]
-    lit = g.with_sh(shade_sh(shading.albedo, shading.factors_at(truth[:, :3, :3], parts)))
-    frame, mask = frame_of(lit, parts, truth)
+    frame, mask = frame_of(shading.lit(g, parts, truth[:, :3, :3]), parts, truth)
     start = turn([1, -0.5, 0.3], 3, shift=(0.04, -0.03, 0.05)) @ truth
     shaded = align_one(g, parts, truth, start, frame, mask, shading=shading)
     unshaded = align_one(g, parts, truth, start, frame, mask)

@@ -43,7 +43,7 @@ from ..render import render
 from ..render.backward import render_with_grad
 from ._init import pose_gaussians
 from ._views import FitView, make_view
-from .shading import Shading, shade_sh
+from .shading import Shading
 
 __all__ = ["AlignOptions", "Alignment", "align_poses", "align_frame", "frame_pyramid", "frame_loss", "move_parts",
            "rms_radius", "twist_loss", "twist_gradient"]
@@ -265,13 +265,6 @@ def frame_pyramid(image: np.ndarray, mask: np.ndarray, K: np.ndarray, scale: flo
     return [make_view(t, image, mask, K, scale / 2 ** level) for level in reversed(range(levels))]
 
 
-def _lit(gaussians: Gaussians, parts: np.ndarray, poses: np.ndarray, shading: Shading | None) -> Gaussians:
-    """The Gaussians at rest coloured as they look with their parts at poses (K, 4, 4) (unchanged without shading)."""
-    if shading is None:
-        return gaussians
-    return gaussians.with_sh(shade_sh(shading.albedo, shading.factors_at(poses[:, :3, :3], parts)))
-
-
 def align_poses(gaussians: Gaussians, parts: np.ndarray, frames, masks, K: np.ndarray, poses: np.ndarray, *,
                 frames_to_align: Sequence[int] | None = None, movable: np.ndarray | None = None,
                 shading: Shading | None = None, options: AlignOptions = AlignOptions(),
@@ -322,11 +315,13 @@ def align_poses(gaussians: Gaussians, parts: np.ndarray, frames, masks, K: np.nd
         mask = np.asarray(masks[t], bool)
         if mask.any():
             pyramid = frame_pyramid(np.asarray(frames[t]), mask, K, scale, options.levels, t)
-            poses[:, t], before[t], after[t] = align_frame(_lit(gaussians, parts, poses[:, t], shading), parts,
-                                                           poses[:, t], pyramid, movable, max(radius, 1e-9), options)
+            model = gaussians if shading is None else shading.lit(gaussians, parts, poses[:, t, :3, :3])
+            poses[:, t], before[t], after[t] = align_frame(model, parts, poses[:, t], pyramid, movable,
+                                                           max(radius, 1e-9), options)
             if shading is not None:  # lit as the refined pose faces the light, the finest level once more
-                poses[:, t], _, after[t] = align_frame(_lit(gaussians, parts, poses[:, t], shading), parts,
-                                                       poses[:, t], pyramid[-1:], movable, max(radius, 1e-9), options)
+                model = shading.lit(gaussians, parts, poses[:, t, :3, :3])
+                poses[:, t], _, after[t] = align_frame(model, parts, poses[:, t], pyramid[-1:], movable,
+                                                       max(radius, 1e-9), options)
             done.append(t)
         if progress:
             progress(i + 1, len(todo))

@@ -62,6 +62,10 @@ class Shading:
         """Shading factors (N,) float64 of the Gaussians with their parts (N,) turned by ``rotations`` (K, 3, 3)."""
         return shade_factors(np.einsum("nij,nj->ni", rotations[parts], self.normals), self.lighting)
 
+    def lit(self, gaussians: Gaussians, parts: np.ndarray, rotations: np.ndarray) -> Gaussians:
+        """The Gaussians (N) at rest, coloured as they look with their parts (N,) turned by ``rotations`` (K, 3, 3)."""
+        return gaussians.with_sh(shade_sh(self.albedo, self.factors_at(rotations, parts)))
+
     def sh_at(self, rotations: np.ndarray, parts: np.ndarray, turned_albedo: np.ndarray) -> np.ndarray:
         """SH (N, C, 3) of the Gaussians with their parts turned by ``rotations`` (K, 3, 3), given the albedo
         already turned with them (``turned_albedo`` (N, C, 3))."""
