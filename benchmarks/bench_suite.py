@@ -2,7 +2,7 @@
 
 Run from the root of a clean clone (the suite runs against the working tree)::
 
-    python benchmarks/bench_suite.py [--opencv 5.0.0.93,4.14.0.94] [--coretype Haswell] [--skip-suite]
+    python benchmarks/bench_suite.py [--opencv 5.1.0.95,5.0.0.93,4.14.0.94] [--coretype Haswell] [--skip-suite]
 
 For each OpenCV release, a fresh virtual environment gets the README's
 ``pip install -e ".[test]"`` with that release pinned over the default, and
@@ -149,7 +149,7 @@ def write_page(suite: list[dict], det: list[dict], coretype: str) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--opencv", default="5.0.0.93,4.14.0.94", help="OpenCV releases, comma-separated")
+    parser.add_argument("--opencv", default="5.1.0.95,5.0.0.93,4.14.0.94", help="OpenCV releases, comma-separated")
     parser.add_argument("--coretype", default="Haswell", help="OPENBLAS_CORETYPE of the second run")
     parser.add_argument("--skip-suite", action="store_true", help="only the determinism table")
     args = parser.parse_args()
