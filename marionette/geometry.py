@@ -24,6 +24,7 @@ __all__ = [
     "invert_transform",
     "transform_points",
     "umeyama",
+    "rotation_between_directions",
     "se3_interpolate",
 ]
 
@@ -215,6 +216,15 @@ def umeyama(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = None,
         var = float(w @ (xs**2).sum(axis=1))
         s = float((sig * corr).sum() / var) if var > 0 else 1.0
     return r, mu_d - s * r @ mu_s, s
+
+
+def rotation_between_directions(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """Rotations (..., 3, 3) minimising ``Σ |dst - R src|²`` over direction pairs (..., N, 3) (Kabsch, no centring:
+    the directions are seen from one centre)."""
+    u, _, vt = np.linalg.svd(np.swapaxes(src, -1, -2) @ dst)
+    d = np.sign(np.linalg.det(np.swapaxes(vt, -1, -2) @ np.swapaxes(u, -1, -2)))
+    vt[..., 2, :] *= d[..., None]  # keep det(R) = +1
+    return np.swapaxes(vt, -1, -2) @ np.swapaxes(u, -1, -2)
 
 
 def se3_interpolate(a: np.ndarray, b: np.ndarray, alpha: float | np.ndarray) -> np.ndarray:

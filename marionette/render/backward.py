@@ -86,7 +86,7 @@ from .rasterizer import (
     _exp_clamped, _forward, _Frame, _rotation, _screen_covariance, _splat, _splat_row, _tile_origin,
     _world_covariance,
 )
-from .sh import SH_C0, SH_C1, SH_C2, SH_C3, _sh_channel
+from .sh import SH_C0, SH_C1, SH_C2, SH_C3
 
 __all__ = ["render_with_grad", "RenderWithGrad", "RenderGradients"]
 
@@ -488,6 +488,13 @@ def _blend_backward(tile_start, tile_ids, params, boxes, width, height, backgrou
                 slot = _slot(pair_start, order, boxes, g, ty, tx)
                 for q in range(_NGRAD):
                     pair[slot, q] = accs[q * TILE]
+                # A channel the forward clamped to 0 (SH + 0.5 <= 0) passes no gradient to its SH.
+                if red <= f32(0.0):
+                    pair[slot, _GR] = f32(0.0)
+                if green <= f32(0.0):
+                    pair[slot, _GG] = f32(0.0)
+                if blue <= f32(0.0):
+                    pair[slot, _GBL] = f32(0.0)
             for q in range(_NGRAD):
                 accs[q * TILE] = f32(0.0)
 
@@ -672,10 +679,8 @@ def _project_range(lo, hi, means, quats, variances, opacities, sh, view, K, camp
         dxw, dyw, dzw = mx - campos[0], my - campos[1], mz - campos[2]
         inv = 1.0 / math.sqrt(max(dxw * dxw + dyw * dyw + dzw * dzw, 1e-300))
         ux, uy, uz = dxw * inv, dyw * inv, dzw * inv
-        vr = g_r if _sh_channel(sh, i, 0, ux, uy, uz) + 0.5 > 0.0 else 0.0
-        vg = g_g if _sh_channel(sh, i, 1, ux, uy, uz) + 0.5 > 0.0 else 0.0
-        vbl = g_b if _sh_channel(sh, i, 2, ux, uy, uz) + 0.5 > 0.0 else 0.0
-        gux, guy, guz = _sh_backward_one(sh, i, ux, uy, uz, vr, vg, vbl, v_sh)
+        # The colour gradients are zero already where the forward clamped (``_blend_backward``).
+        gux, guy, guz = _sh_backward_one(sh, i, ux, uy, uz, g_r, g_g, g_b, v_sh)
         # Through the normalisation: (I - u uᵀ) g / |d|.
         dot = ux * gux + uy * guy + uz * guz
         vmx += (gux - ux * dot) * inv

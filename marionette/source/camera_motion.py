@@ -37,9 +37,9 @@ import numpy as np
 from scipy import ndimage
 
 from ..errors import InputError
-from ..geometry import invert_transform, make_transform
+from ..geometry import invert_transform, make_transform, rotation_between_directions
 from ..io.video import PackedMasks
-from .camera_pose import CameraPoses, fit_camera_poses
+from .camera_pose import CameraPoses, bearings_of, fit_camera_poses
 from .tracks import Tracks, _check_video, track
 
 __all__ = ["CameraMotion", "estimate_camera_motion", "to_world"]
@@ -102,33 +102,19 @@ def _agreement(inlier_ratio: np.ndarray) -> float:
     return float(np.percentile(inlier_ratio[1:], 10)) if len(inlier_ratio) > 1 else 1.0
 
 
-def _kabsch(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """Rotations (..., 3, 3) minimising ``Σ |dst - R src|²`` over direction pairs (..., N, 3) (no centring)."""
-    u, _, vt = np.linalg.svd(np.swapaxes(src, -1, -2) @ dst)
-    d = np.sign(np.linalg.det(np.swapaxes(vt, -1, -2) @ np.swapaxes(u, -1, -2)))
-    vt[..., 2, :] *= d[..., None]  # keep det(R) = +1
-    return np.swapaxes(vt, -1, -2) @ np.swapaxes(u, -1, -2)
-
-
 def _ransac_rotation(src: np.ndarray, dst: np.ndarray, threshold: float, iterations: int,
                      rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """Robust ``dst ≈ R src`` on unit directions (N, 3), inliers within ``threshold`` (radians) → (R, inliers)."""
     pairs = np.stack([rng.choice(len(src), 2, replace=False) for _ in range(iterations)])  # (I, 2)
-    hypotheses = _kabsch(src[pairs], dst[pairs])  # (I, 3, 3)
+    hypotheses = rotation_between_directions(src[pairs], dst[pairs])  # (I, 3, 3)
     errors = np.linalg.norm(dst[None] - src @ np.swapaxes(hypotheses, 1, 2), axis=2)  # (I, N)
     inliers = errors[np.argmax((errors < threshold).sum(axis=1))] < threshold
     for _ in range(3):  # refit on the consensus, then re-select it
-        r = _kabsch(src[inliers], dst[inliers])
+        r = rotation_between_directions(src[inliers], dst[inliers])
         inliers = np.linalg.norm(dst - src @ r.T, axis=1) < threshold
         if inliers.sum() < 2:
             break
     return r, inliers
-
-
-def _bearings(uv: np.ndarray, k: np.ndarray) -> np.ndarray:
-    """Pixels (..., 2) → unit viewing directions (..., 3) in the camera."""
-    rays = np.concatenate([uv, np.ones(uv.shape[:-1] + (1,))], axis=-1) @ np.linalg.inv(k).T
-    return rays / np.linalg.norm(rays, axis=-1, keepdims=True)
 
 
 def _displacement(tracks: Tracks, min_tracks: int) -> float:
@@ -208,7 +194,7 @@ def estimate_camera_motion(frames: np.ndarray, object_masks: np.ndarray, K: np.n
         return CameraMotion(identity, True, np.ones(num_frames), np.zeros(num_frames), displacement,
                             tracks.num_tracks, "static")
 
-    bearings = _bearings(tracks.uv.astype(np.float64), k)  # (T, M, 3), NaN where not visible
+    bearings = bearings_of(tracks.uv.astype(np.float64), k)  # (T, M, 3), NaN where not visible
     world = np.where((tracks.start == 0)[:, None], bearings[0], np.nan)  # (M, 3) direction in the world
     rotations = np.tile(np.eye(3), (num_frames, 1, 1))
     inlier_ratio, residual = np.ones(num_frames), np.zeros(num_frames)

@@ -6,19 +6,23 @@ room) shows parallax when the camera travels, and that model leaves most
 of it unexplained. Here the background is a set of 3D points seen by a
 moving pinhole camera:
 
-1. Two views: frame 0 and the frame with the most parallax that still sees
-   half of frame 0's tracks. Their essential matrix (OpenCV's USAC with
-   local optimisation: plain RANSAC returns a minimal sample's model, off by
-   half a degree at 0.3 px of noise), the relative pose it gives, and the
-   shared tracks triangulated.
-2. Every other frame in time order: PnP (EPnP inside RANSAC, then
-   Levenberg-Marquardt on the inliers) on its tracks that have a 3D point.
-   Tracks without a point are triangulated from their seed frame and the
-   current one once their rays part by ``min_angle_deg``, so the chain goes
-   on when frame 0's tracks have left the picture.
+1. Two views: the pair of frames, among those sharing enough tracks, whose
+   tracks part most once the best rotation between them is taken out (the
+   parallax a translation makes; frame 0 and its neighbours may have none,
+   as when a hand-held camera starts still). Their essential matrix
+   (OpenCV's USAC with local optimisation: plain RANSAC returns a minimal
+   sample's model, off by half a degree at 0.3 px of noise), the relative
+   pose it gives, and the shared tracks triangulated.
+2. Every other frame, forward in time from the pair's first frame and then
+   backward from it: PnP (EPnP inside RANSAC, then Levenberg-Marquardt on
+   the inliers) on its tracks that have a 3D point. Tracks without a point
+   are triangulated from the current frame and the farthest frame in time
+   that has a pose and sees them, once their rays part by ``min_angle_deg``,
+   so the chain goes on when the first tracks have left the picture.
 3. Bundle adjustment by resection and intersection (:func:`_refine`): every
    track re-triangulated from all its agreeing frames, every pose refined
-   on its agreeing tracks, a few rounds.
+   on its agreeing tracks, a few rounds. The result is then re-expressed
+   with frame 0's camera as the world.
 
 A single video fixes the translation only up to scale: it comes out in
 units of the two views' baseline, and the caller sets the scale
@@ -39,10 +43,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from ..geometry import make_transform
+from ..geometry import invert_transform, make_transform, rotation_between_directions
 from .tracks import Tracks
 
-__all__ = ["CameraPoses", "fit_camera_poses"]
+__all__ = ["CameraPoses", "bearings_of", "fit_camera_poses"]
 
 
 @dataclass(frozen=True)
@@ -99,19 +103,48 @@ def _triangulate(pose_a: np.ndarray, pose_b: np.ndarray, uv_a: np.ndarray, uv_b:
     return points, good
 
 
-def _initial_pair(tracks: Tracks, min_points: int) -> int | None:
-    """The frame paired with frame 0: the most parallax (median displacement) among the frames that still see
-    half of frame 0's tracks; None if no frame sees ``min_points`` of them."""
-    seen = tracks.visible[0]
-    best, best_shift = None, 0.0
-    for t in range(1, tracks.num_frames):
-        common = seen & tracks.visible[t]
-        if common.sum() < max(min_points, 0.5 * seen.sum()):
-            break
-        shift = float(np.median(np.linalg.norm(tracks.uv[t, common] - tracks.uv[0, common], axis=1)))
-        if shift > best_shift:
-            best, best_shift = t, shift
+def bearings_of(uv: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """Pixels (..., 2) → unit viewing directions (..., 3) in the camera."""
+    rays = np.concatenate([uv, np.ones(uv.shape[:-1] + (1,))], axis=-1) @ np.linalg.inv(k).T
+    return rays / np.linalg.norm(rays, axis=-1, keepdims=True)
+
+
+def _initial_pair(bearings: np.ndarray, visible: np.ndarray, min_shared: int,
+                  max_frames: int = 40) -> tuple[int, int] | None:
+    """The two frames (a < b) to start from: of the pairs sharing ``min_shared`` tracks, the one whose shared
+    bearings (T, M, 3) part most, by the median angle left once the best rotation between them is taken out.
+    At most ``max_frames`` evenly spaced frames are compared. None if no pair shares enough tracks."""
+    num_frames = len(bearings)
+    frames = np.unique(np.linspace(0, num_frames - 1, min(num_frames, max_frames)).astype(int))
+    best, best_parallax = None, 0.0
+    for i, a in enumerate(frames):
+        for b in frames[i + 1:]:
+            shared = np.nonzero(visible[a] & visible[b])[0]
+            if len(shared) < min_shared:
+                continue
+            rotation = rotation_between_directions(bearings[a, shared], bearings[b, shared])
+            parallax = float(np.median(np.linalg.norm(bearings[b, shared] - bearings[a, shared] @ rotation.T,
+                                                      axis=1)))
+            if parallax > best_parallax:
+                best, best_parallax = (int(a), int(b)), parallax
     return best
+
+
+def _triangulate_fresh(t: int, poses: np.ndarray, points: np.ndarray, uv: np.ndarray, visible: np.ndarray,
+                       solved: np.ndarray, k: np.ndarray, threshold_px: float, min_angle_deg: float) -> None:
+    """Give a point (in ``points`` (M, 3), in place) to the tracks frame ``t`` sees without one, each triangulated
+    from ``t`` and the solved frame farthest from ``t`` in time that sees it (the widest baseline, as a rule)."""
+    fresh = np.nonzero(visible[t] & ~np.isfinite(points[:, 0]))[0]
+    if not len(fresh):
+        return
+    usable = visible[:, fresh] & solved[:, None]
+    usable[t] = False
+    gap = np.where(usable, np.abs(np.arange(len(poses)) - t)[:, None], -1)  # (T, F)
+    reference, has = gap.argmax(axis=0), gap.max(axis=0) > 0
+    for r in np.unique(reference[has]):
+        sel = fresh[has & (reference == r)]
+        found, good = _triangulate(poses[r], poses[t], uv[r, sel], uv[t, sel], k, 2 * threshold_px, min_angle_deg)
+        points[sel[good]] = found[good]
 
 
 def _triangulate_all(poses: np.ndarray, uv: np.ndarray, use: np.ndarray, k: np.ndarray) -> np.ndarray:
@@ -139,23 +172,27 @@ def _reprojection_errors(poses: np.ndarray, points: np.ndarray, uv: np.ndarray, 
     return np.nan_to_num(np.linalg.norm(projected - uv, axis=2), nan=np.inf)
 
 
-def _refine(poses: np.ndarray, uv: np.ndarray, visible: np.ndarray, solved: np.ndarray, k: np.ndarray,
-            threshold_px: float, min_points: int, rounds: int) -> tuple[np.ndarray, np.ndarray]:
+def _refine(poses: np.ndarray, points: np.ndarray, uv: np.ndarray, visible: np.ndarray, solved: np.ndarray,
+            anchor: int, k: np.ndarray, threshold_px: float, min_points: int,
+            rounds: int) -> tuple[np.ndarray, np.ndarray]:
     """Bundle adjustment by resection and intersection: ``rounds`` times, every track re-triangulated from all
-    the frames where it agrees with the poses (within 3 thresholds), then every solved frame's pose refined by
-    Levenberg-Marquardt on its agreeing tracks. Frame 0 stays the world. → (poses (T, 4, 4), points (M, 3))."""
-    use = visible & solved[:, None]
+    the frames where it agrees (within 3 thresholds) with the poses (T, 4, 4) and its current point (M, 3), then
+    every solved frame's pose refined by Levenberg-Marquardt on its agreeing tracks. Frame ``anchor`` stays
+    where it is. Only agreeing observations count: a background holds things that move (a person, a shadow),
+    and the linear triangulation has no defence against them. → (poses (T, 4, 4), points (M, 3))."""
     for _ in range(rounds):
+        use = visible & solved[:, None] & (_reprojection_errors(poses, points, uv, k) < 3 * threshold_px)
         points = _triangulate_all(poses, uv, use, k)
-        errors = _reprojection_errors(poses, points, uv, k)
-        use = visible & solved[:, None] & (errors < 3 * threshold_px)
-        for t in np.nonzero(solved)[0][1:]:
+        use &= _reprojection_errors(poses, points, uv, k) < 3 * threshold_px
+        for t in np.nonzero(solved & (np.arange(len(poses)) != anchor))[0]:
             sel = np.nonzero(use[t] & np.isfinite(points[:, 0]))[0]
             if len(sel) < min_points:
                 continue
+            # Column vectors: given a (3,) translation, OpenCV 5 leaves it where it was.
             rvec, tvec = cv2.solvePnPRefineLM(points[sel], uv[t, sel], k, None, cv2.Rodrigues(poses[t, :3, :3])[0],
-                                              poses[t, :3, 3].copy())
+                                              poses[t, :3, 3].reshape(3, 1).copy())
             poses[t] = make_transform(cv2.Rodrigues(rvec)[0], tvec.ravel())
+    use = visible & solved[:, None] & (_reprojection_errors(poses, points, uv, k) < 3 * threshold_px)
     return poses, _triangulate_all(poses, uv, use, k)
 
 
@@ -182,37 +219,44 @@ def fit_camera_poses(tracks: Tracks, K: np.ndarray, *, threshold_px: float = 1.0
 
     Returns
     -------
-    CameraPoses, or None when no two views share ``min_points`` tracks with parallax.
+    CameraPoses, or None when no two frames share ``4 min_points`` tracks with parallax that fix
+    ``min_points`` points, or frame 0's pose cannot be found.
     """
     k = np.asarray(K, dtype=np.float64)
     uv = tracks.uv.astype(np.float64)
     num_frames, num_tracks = tracks.num_frames, tracks.num_tracks
-    pair = _initial_pair(tracks, min_points)
+    pair = _initial_pair(bearings_of(uv, k), tracks.visible, 4 * min_points)
     if pair is None:
         return None
-    common = np.nonzero(tracks.visible[0] & tracks.visible[pair])[0]
+    first, second = pair
+    common = np.nonzero(tracks.visible[first] & tracks.visible[second])[0]
     cv2.setRNGSeed(seed)
-    essential, mask = cv2.findEssentialMat(uv[0, common], uv[pair, common], k, cv2.USAC_ACCURATE, 0.999, threshold_px)
+    essential, mask = cv2.findEssentialMat(uv[first, common], uv[second, common], k, cv2.USAC_ACCURATE, 0.999,
+                                           threshold_px)
     if essential is None or essential.shape != (3, 3):
         return None
-    _, rotation, translation, mask = cv2.recoverPose(essential, uv[0, common], uv[pair, common], k, mask=mask)
+    _, rotation, translation, mask = cv2.recoverPose(essential, uv[first, common], uv[second, common], k, mask=mask)
     poses = np.tile(np.eye(4), (num_frames, 1, 1))
-    poses[pair] = make_transform(rotation, translation.ravel())
+    poses[second] = make_transform(rotation, translation.ravel())
     points = np.full((num_tracks, 3), np.nan)
     inl = common[mask.ravel() > 0]
     if len(inl) < min_points:
         return None
-    found, good = _triangulate(poses[0], poses[pair], uv[0, inl], uv[pair, inl], k, 2 * threshold_px, min_angle_deg)
+    found, good = _triangulate(poses[first], poses[second], uv[first, inl], uv[second, inl], k, 2 * threshold_px,
+                               min_angle_deg)
     if good.sum() < min_points:
         return None
     points[inl[good]] = found[good]
 
     solved = np.zeros(num_frames, bool)
-    solved[0] = True
-    for t in range(1, num_frames):
+    solved[[first, second]] = True
+    # Forward from the pair's first frame, then backward from it; a frame whose pose is not found keeps
+    # its predecessor's in that order.
+    order = [*range(first + 1, num_frames), *range(first - 1, -1, -1)]
+    for i, t in enumerate(order):
+        previous = poses[first] if t == first + 1 or t == first - 1 else poses[order[i - 1]]
         usable = np.nonzero(tracks.visible[t] & np.isfinite(points[:, 0]))[0]
-        previous = poses[t - 1]
-        if len(usable) >= min_points:
+        if not solved[t] and len(usable) >= min_points:
             # EPnP samples, no initial guess: OpenCV 5's iterative PnP started from a guess was seen to return
             # a camera a million units away (and a different one each call) with all points agreeing.
             cv2.setRNGSeed(seed + t)
@@ -226,16 +270,14 @@ def fit_camera_poses(tracks: Tracks, K: np.ndarray, *, threshold_px: float = 1.0
         if not solved[t]:
             poses[t] = previous
             continue
-        # New points: tracks seen now without one, triangulated from their seed frame if it has a pose.
-        fresh = np.nonzero(tracks.visible[t] & ~np.isfinite(points[:, 0]) & solved[tracks.start]
-                           & (tracks.start < t))[0]
-        for seed_frame in np.unique(tracks.start[fresh]):
-            sel = fresh[tracks.start[fresh] == seed_frame]
-            found, good = _triangulate(poses[seed_frame], poses[t], uv[seed_frame, sel], uv[t, sel], k,
-                                       2 * threshold_px, min_angle_deg)
-            points[sel[good]] = found[good]
-
-    poses, points = _refine(poses, uv, tracks.visible, solved, k, threshold_px, min_points, rounds)
+        _triangulate_fresh(t, poses, points, uv, tracks.visible, solved, k, threshold_px, min_angle_deg)
+    if not solved[0]:  # frame 0 is the world: without its pose nothing can be said in it
+        return None
+    poses, points = _refine(poses, points, uv, tracks.visible, solved, first, k, threshold_px, min_points, rounds)
+    # Frame 0's camera becomes the world.
+    to_world = poses[0].copy()
+    poses = poses @ invert_transform(to_world)
+    points = points @ to_world[:3, :3].T + to_world[:3, 3]
     errors = _reprojection_errors(poses, points, uv, k)
     inlier_ratio, residual = np.zeros(num_frames), np.zeros(num_frames)
     for t in np.nonzero(solved)[0]:
