@@ -27,7 +27,7 @@ IMAGES = ROOT / "docs" / "images"
 
 #: name: (clip, masks?, parts, frame range end or None, what to look for)
 CASES = {
-    "car-turn": ("davis_car-turn", True, "1", None, "yaw change of about 90°"),
+    "car-turn": ("davis_car-turn", True, "1", None, "yaw of about 100° as the camera sees it, about 50° in the world (the camera pans about 55° with the car)"),
     "car-turn, no masks": ("davis_car-turn", False, "1", None, "the same without masks"),
     "car-shadow": ("davis_car-shadow", True, "1", None, "mostly translation, slight turn"),
     "train, parts auto": ("davis_train", True, "auto", None, "more than one part"),
