@@ -57,6 +57,20 @@ def test_a_frame_turned_away_from_its_model_is_aligned_closer_than_its_guess(sce
     assert _rotation_error(pose, truth[16]) < 2.0
 
 
+def test_a_guess_that_overshoots_falls_back_to_the_model_frames_pose(scene):
+    """A constant-velocity guess from a wrong last step, 60° off and half the radius away: the alignment
+    starts again from the model frame's own pose (frames 11 and 12 are 3.1° apart)."""
+    truth = scene.poses[0]
+    recovery = FrameRecovery(scene.frames, scene.masks, scene.camera.K, scene.centroids()[0, 0])
+    wild = truth[12].copy()
+    wild[:3, :3] = axis_angle_to_matrix(np.radians([0.0, 60.0, 20.0])) @ wild[:3, :3]
+    wild[:3, 3] += 0.5 * scene.radii()[0]
+    pose, note = recovery(12, 11, truth[11], wild, *_true_depths(scene, 11))
+    assert pose is not None, note
+    assert "from its pose" in note
+    assert _rotation_error(pose, truth[12]) < 1.5
+
+
 def test_a_rough_relief_falls_back_to_the_silhouettes(scene):
     """Depths scattered by a badly fitted frame would raise walls of many times the body's area (a 210x blow-up
     on the backpack clip, 40 s per alignment): the model takes the silhouette's relief and keeps its size."""

@@ -10,7 +10,7 @@ points seen there and the depth of the body's centroid), taken to frame 0
 by the inverse of that pose, and aligned photometrically to the lost frame
 (:func:`~marionette.reconstruct.align.align_frame`: colour and silhouette,
 coarse to fine) from a pose extrapolated from its neighbours (or the weak
-PnP pose). The result is kept when the aligned model covers the frame's
+PnP pose), and if that fails from the model frame's own pose. The result is kept when the aligned model covers the frame's
 mask well (silhouette IoU); otherwise the frame stays failed, with the
 reason.
 
@@ -141,15 +141,24 @@ class FrameRecovery:
         options = self.options.align
         scale = min(1.0, options.max_side / max(w, h))
         pyramid = frame_pyramid(np.asarray(self.frames[t]), mask, self.K, scale, options.levels, t)
-        poses, _, _ = align_frame(gaussians, labels, guess[None], pyramid, np.ones(1, bool), max(radius, 1e-9),
-                                  options)
-        iou = _iou(gaussians, poses, pyramid[-1])
         need = self.options.min_iou
         if replace:
             need = max(need, _iou(gaussians, guess[None], pyramid[-1]) + self.options.min_gain)
-        if iou < need:
-            return None, f"aligning the model of frame {source} left a silhouette IoU of {iou:.2f}, need {need:.2f}"
-        return poses[0], f"aligned to the model of frame {source} (silhouette IoU {iou:.2f})"
+        # From the guess, then, if that fails, from the source frame's own pose: a constant-velocity guess
+        # overshoots when the last steps were a wrong pose's (seen at the end of a real clip: 40° and more).
+        best, best_iou, start = None, -1.0, "the guess"
+        for label, pose in (("the guess", guess), ("its pose", source_pose)):
+            poses, _, _ = align_frame(gaussians, labels, pose[None], pyramid, np.ones(1, bool), max(radius, 1e-9),
+                                      options)
+            iou = _iou(gaussians, poses, pyramid[-1])
+            if iou > best_iou:
+                best, best_iou, start = poses[0], iou, label
+            if best_iou >= need:
+                break
+        if best_iou < need:
+            return None, (f"aligning the model of frame {source} left a silhouette IoU of {best_iou:.2f}, "
+                          f"need {need:.2f}")
+        return best, f"aligned to the model of frame {source} from {start} (silhouette IoU {best_iou:.2f})"
 
 
 def _iou(gaussians: Gaussians, poses: np.ndarray, view: FitView) -> float:
