@@ -146,8 +146,10 @@ class FrameRecovery:
             need = max(need, _iou(gaussians, guess[None], pyramid[-1]) + self.options.min_gain)
         # From the guess, then, if that fails, from the source frame's own pose: a constant-velocity guess
         # overshoots when the last steps were a wrong pose's (seen at the end of a real clip: 40° and more).
+        # A measured guess (``replace``) is not second-guessed.
+        starts = [("the guess", guess)] + ([] if replace else [("its pose", source_pose)])
         best, best_iou, start = None, -1.0, "the guess"
-        for label, pose in (("the guess", guess), ("its pose", source_pose)):
+        for label, pose in starts:
             poses, _, _ = align_frame(gaussians, labels, pose[None], pyramid, np.ones(1, bool), max(radius, 1e-9),
                                       options)
             iou = _iou(gaussians, poses, pyramid[-1])
