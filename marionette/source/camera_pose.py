@@ -6,10 +6,11 @@ room) shows parallax when the camera travels, and that model leaves most
 of it unexplained. Here the background is a set of 3D points seen by a
 moving pinhole camera:
 
-1. Two views: the pair of frames, among those sharing enough tracks, whose
-   tracks part most once the best rotation between them is taken out (the
-   parallax a translation makes; frame 0 and its neighbours may have none,
-   as when a hand-held camera starts still). Their essential matrix
+1. Two views: of the four pairs of frames with the most shared tracks that
+   part by ``min_angle_deg`` once the best rotation between the two frames
+   is taken out (the parallax a translation makes; frame 0 and its
+   neighbours may have none, as when a hand-held camera starts still), the
+   one that triangulates the most tracks. Their essential matrix
    (OpenCV's USAC with local optimisation: plain RANSAC returns a minimal
    sample's model, off by half a degree at 0.3 px of noise), the relative
    pose it gives, and the shared tracks triangulated.
@@ -241,8 +242,8 @@ def fit_camera_poses(tracks: Tracks, K: np.ndarray, *, threshold_px: float = 1.0
 
     Returns
     -------
-    CameraPoses, or None when no two frames share ``4 min_points`` tracks with parallax that fix
-    ``min_points`` points, or frame 0's pose cannot be found.
+    CameraPoses, or None when no two frames sharing ``2 min_points`` tracks triangulate ``min_points``
+    of them, or frame 0's pose cannot be found.
     """
     k = np.asarray(K, dtype=np.float64)
     uv = tracks.uv.astype(np.float64)
