@@ -10,9 +10,9 @@ points seen there and the depth of the body's centroid), taken to frame 0
 by the inverse of that pose, and aligned photometrically to the lost frame
 (:func:`~marionette.reconstruct.align.align_frame`: colour and silhouette,
 coarse to fine) from a pose extrapolated from its neighbours (or the weak
-PnP pose), and if that fails from the model frame's own pose. The result is kept when the aligned model covers the frame's
-mask well (silhouette IoU); otherwise the frame stays failed, with the
-reason.
+PnP pose), and if that fails from the model frame's own pose. The result
+is kept when the aligned model covers the frame's mask well (silhouette
+IoU); otherwise the frame stays failed, with the reason.
 
 Not the nearest frame with a pose as the model: a lost frame is usually
 blurred, and the next blurred frame agrees with its blurred model all the
