@@ -644,6 +644,8 @@ def eval_self_cmd(source: Annotated[Path, typer.Argument(help="Video file or fol
                   target: Annotated[str, typer.Option(
                       help="What is moved: 'reconstruction' (the object fitted to the whole video) or 'frame0' "
                            "(source frame 0 lifted alone, the paper's protocol).")] = "reconstruction",
+                  iterations: Annotated[Optional[int], typer.Option(
+                      help="Optimisation steps of the reconstruction (one frame each; default 600).")] = None,
                   source_point: SourcePoint = None, source_box: SourceBox = None,
                   source_exclude: SourceExclude = None, save_masks: SaveMasks = None,
                   quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False,
@@ -651,9 +653,15 @@ def eval_self_cmd(source: Annotated[Path, typer.Argument(help="Video file or fol
     """Self-transfer (the paper's Table 1): the source object as the target, scored against the masked source."""
     from .eval import EVAL_EXTRACT, EVAL_SELF_OUTPUTS, eval_self
     from .eval.self_eval import EVAL_TARGETS
+    from .reconstruct import ReconstructOptions
 
     if target not in EVAL_TARGETS:
         raise InputError(f"--target must be one of {', '.join(EVAL_TARGETS)}, got {target!r}")
+    if iterations is not None and target != "reconstruction":
+        raise InputError("--iterations sets the reconstruction's fit; it needs --target reconstruction")
+    if iterations is not None and not 1 <= iterations <= 1_000_000:
+        raise InputError(f"--iterations must be within 1..1000000, got {iterations}")
+    reconstruct_options = ReconstructOptions() if iterations is None else ReconstructOptions(iterations=iterations)
 
     _check_max_side(max_side)
     options = replace(EVAL_EXTRACT, parts=_parsed("--parts", parse_parts, parts))
@@ -664,7 +672,8 @@ def eval_self_cmd(source: Annotated[Path, typer.Argument(help="Video file or fol
     with _session("eval-self", quiet, verbose, json_summary) as session:
         masks_out = None if save_masks is None else session.staged.folder(save_masks, MASK_FRAME_NAME)
         metrics = eval_self(source, masks, session.staged.folder(output), max_side=max_side, options=options,
-                            target=target, prompt=prompt, masks_out=masks_out, reporter=session.reporter)
+                            target=target, prompt=prompt, masks_out=masks_out, reporter=session.reporter,
+                            reconstruct_options=reconstruct_options)
         for kind, name in EVAL_SELF_OUTPUTS.items():
             session.output(kind, output / name)
         if save_masks is not None:

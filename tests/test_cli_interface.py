@@ -137,6 +137,25 @@ def test_eval_self_command_writes_the_table_1_outputs(tmp_path, clip, capsys, mo
     assert "--max-side" in one_error_line(capsys)
 
 
+def test_eval_self_iterations_reach_the_reconstruction(tmp_path, clip, capsys, monkeypatch):
+    from marionette.eval import self_eval
+
+    monkeypatch.setattr("marionette.eval.self_eval.find_weights", lambda: None)
+    fitted = []
+    real = self_eval.reconstruct_object
+    monkeypatch.setattr(self_eval, "reconstruct_object",
+                        lambda *a, options, **k: fitted.append(options.iterations) or real(*a, options=options, **k))
+    out = tmp_path / "eval"
+    args = ["eval-self", str(clip / "frames"), "--masks", str(clip / "masks"), "-q"]
+    assert main([*args, "--iterations", "30", "-o", str(out)]) == 0
+    assert fitted == [30] and (out / "metrics.json").is_file()
+    for bad, word in ((["--iterations", "0"], "--iterations"), (["--iterations", "30", "--target", "frame0"],
+                                                                   "--target reconstruction")):
+        assert main([*args, *bad, "-o", str(tmp_path / "bad")]) == 2
+        assert word in one_error_line(capsys)
+        assert not (tmp_path / "bad").exists()
+
+
 def test_eval_self_follows_a_clicked_object_and_saves_its_masks(tmp_path, clip, capsys, monkeypatch):
     from scipy import ndimage
 

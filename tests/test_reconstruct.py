@@ -166,9 +166,10 @@ def test_eval_self_with_the_reconstruction_beats_the_frame0_lift(source_dir, tmp
         eval_self(source_dir / "frames", source_dir / "masks", tmp_path / "bad", target="mesh")
 
 
-def test_fit_gradients_of_the_view_dependent_colours_match_finite_differences():
+@pytest.mark.parametrize("ssim_weight", [0.0, 0.5])
+def test_fit_gradients_of_the_view_dependent_colours_match_finite_differences(ssim_weight):
     """The degree-1 SH terms live in the object's frame and are turned with each part's pose: the fit's
-    gradient of them (the renderer's, turned back) is the loss's own slope."""
+    gradient of them (the renderer's, turned back) is the loss's own slope, with or without the D-SSIM term."""
     from marionette.camera import Camera
     from marionette.geometry import axis_angle_to_matrix, make_transform, matrix_to_quaternion
     from marionette.reconstruct._views import FitView
@@ -187,13 +188,13 @@ def test_fit_gradients_of_the_view_dependent_colours_match_finite_differences():
     camera = Camera(np.array([[60.0, 0, 24], [0, 60.0, 24], [0, 0, 1]]), np.eye(4), 48, 48)
     view = FitView(0, camera, rng.uniform(0, 1, (48, 48, 3)).astype(np.float32), np.ones((48, 48), np.float32))
     q_pose = matrix_to_quaternion(poses[:, :3, :3])
-    _, grads, _ = _loss_and_grads(params, parts, view, poses, q_pose, 0.5)
+    _, grads, _ = _loss_and_grads(params, parts, view, poses, q_pose, 0.5, ssim_weight=ssim_weight)
     direction = rng.normal(size=(n, 3, 3))
     step = 2e-2
 
     def loss_at(offset: float) -> float:
         moved = {**params, "rest": (params["rest"] + offset * direction).astype(np.float32)}
-        return _loss_and_grads(moved, parts, view, poses, q_pose, 0.5)[0]
+        return _loss_and_grads(moved, parts, view, poses, q_pose, 0.5, ssim_weight=ssim_weight)[0]
 
     numeric = (loss_at(step) - loss_at(-step)) / (2 * step)
     analytic = float(np.sum(grads["rest"] * direction))
