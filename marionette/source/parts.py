@@ -110,7 +110,7 @@ from scipy import sparse
 from scipy.spatial import cKDTree
 
 from ..errors import InputError
-from ..geometry import axis_angle_to_matrix, skew
+from ..geometry import axis_angle_to_matrix
 from .tracks import Tracks
 
 __all__ = ["PartSegmentation", "segment_parts", "STATIC", "OUTLIER", "OFF_OBJECT"]
@@ -197,18 +197,57 @@ class PartSegmentation:
 # ------------------------------------------------------------------ rigid motion model
 
 
-def _project(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Camera points (..., 3) → normalised image points (..., 2) and their Jacobian (..., 2, 3).
+def _project(points: np.ndarray, jacobian: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+    """Camera points (..., 3) → normalised image points (..., 2) and (with ``jacobian``) their Jacobian (..., 2, 3).
 
     Depths are floored at 1 % of the object's (about 1, the gauge), so
     that a point pushed behind the camera by a wrong motion stays finite.
     """
     z = np.maximum(points[..., 2], 1e-2)
     xy = points[..., :2] / z[..., None]
+    if not jacobian:
+        return xy, None
     jac = np.zeros(points.shape[:-1] + (2, 3))
     jac[..., 0, 0] = jac[..., 1, 1] = 1.0 / z
     jac[..., :, 2] = -xy / z[..., None]
     return xy, jac
+
+
+# The Jacobians below are ``jac @ -skew(cam)`` and ``jac @ rot`` written out entry by entry (``jac`` is
+# [[a, 0, b], [0, a, c]]): numpy's products of stacked 3x3 matrices are slow, and their rounding follows
+# the BLAS kernel, which the part decision must not.
+
+
+def _pose_jacobian(cam: np.ndarray, jac: np.ndarray) -> np.ndarray:
+    """(..., 2, 6) Jacobian of the projections of camera points ``cam`` (..., 3) with respect to their frame's
+    pose (left perturbation: rotation, then translation); ``jac`` (..., 2, 3) from :func:`_project`."""
+    a, b, c = jac[..., 0, 0], jac[..., 0, 2], jac[..., 1, 2]
+    x, y, z = cam[..., 0], cam[..., 1], cam[..., 2]
+    out = np.empty(cam.shape[:-1] + (2, 6))
+    out[..., 0, 0], out[..., 0, 1], out[..., 0, 2] = b * y, a * z - b * x, -a * y
+    out[..., 1, 0], out[..., 1, 1], out[..., 1, 2] = c * y - a * z, -c * x, a * x
+    out[..., 3:] = jac
+    return out
+
+
+def _point_jacobian(jac: np.ndarray, rot: np.ndarray) -> np.ndarray:
+    """(T, N, 2, 3) Jacobian of the projections with respect to the frame-0 points: ``jac`` (T, N, 2, 3) from
+    :func:`_project`, rotations ``rot`` (T, 3, 3)."""
+    a, b, c = jac[..., 0, 0, None], jac[..., 0, 2, None], jac[..., 1, 2, None]
+    r0, r1, r2 = rot[:, None, 0], rot[:, None, 1], rot[:, None, 2]  # (T, 1, 3) rows
+    return np.stack([a * r0 + b * r2, a * r1 + c * r2], axis=-2)
+
+
+def _inverse_3x3(m: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) inverses of invertible matrices (N, 3, 3), by the adjugate."""
+    adj = np.empty_like(m)
+    for i in range(3):
+        for j in range(3):
+            # Cofactor of entry (j, i): rows other than j, columns other than i, cyclically ordered.
+            r1, r2, c1, c2 = (j + 1) % 3, (j + 2) % 3, (i + 1) % 3, (i + 2) % 3
+            adj[:, i, j] = m[:, r1, c1] * m[:, r2, c2] - m[:, r1, c2] * m[:, r2, c1]
+    det = m[:, 0, 0] * adj[:, 0, 0] + m[:, 0, 1] * adj[:, 1, 0] + m[:, 0, 2] * adj[:, 2, 0]
+    return adj / det[:, None, None]
 
 
 def _move(rot: np.ndarray, trans: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -230,7 +269,7 @@ def _refine_poses(rot: np.ndarray, trans: np.ndarray, points: np.ndarray, obs: n
     for _ in range(iterations):
         cam = _move(rot, trans, points)
         xy, jac = _project(cam)
-        jw = np.concatenate([jac @ -skew(cam), jac], axis=-1) * sw[..., None]  # (T, N, 2, 6)
+        jw = _pose_jacobian(cam, jac) * sw[..., None]  # (T, N, 2, 6)
         jw = jw.reshape(num_frames, 2 * n, 6)
         res = ((obs - xy) * sw).reshape(num_frames, 2 * n, 1)
         jt = np.swapaxes(jw, 1, 2)
@@ -271,12 +310,12 @@ def _triangulate(motion: _Motion, obs: np.ndarray, vis: np.ndarray, prior_weight
     for _ in range(iterations):
         cam = _move(rot, trans, points)
         xy, jac = _project(cam)
-        jw = ((jac @ rot[:, None]) * w).transpose(1, 0, 2, 3).reshape(m, -1, 3)  # (M, 2T, 3)
+        jw = (_point_jacobian(jac, rot) * w).transpose(1, 0, 2, 3).reshape(m, -1, 3)  # (M, 2T, 3)
         res = ((obs - xy) * w[..., 0]).transpose(1, 0, 2).reshape(m, -1, 1)
         jt = np.swapaxes(jw, 1, 2)
         rhs = (jt @ res)[..., 0] + prior_weight * (prior - points)
-        points = points + np.linalg.solve(jt @ jw + prior_weight * np.eye(3), rhs[..., None])[..., 0]
-    xy, _ = _project(_move(rot, trans, points))
+        points = points + (_inverse_3x3(jt @ jw + prior_weight * np.eye(3)) * rhs[:, None, :]).sum(axis=-1)
+    xy, _ = _project(_move(rot, trans, points), jacobian=False)
     err = np.where(vis, ((obs - xy) ** 2).sum(axis=-1), 0.0)
     return points, err, vis
 
@@ -341,7 +380,7 @@ def _bundle_adjust(motion: _Motion, points: np.ndarray, prior: np.ndarray, obs: 
     eye6, eye3 = np.eye(6), np.eye(3)
 
     def cost(rot, trans, pts):
-        xy, _ = _project(_move(rot, trans, pts))
+        xy, _ = _project(_move(rot, trans, pts), jacobian=False)
         return float((w[..., 0] * (obs - xy) ** 2).sum() + prior_weight * ((pts - prior) ** 2).sum())
 
     rot, trans = motion.rotations, motion.translations
@@ -350,14 +389,15 @@ def _bundle_adjust(motion: _Motion, points: np.ndarray, prior: np.ndarray, obs: 
     for _ in range(iterations):
         cam = _move(rot, trans, points)
         xy, jac = _project(cam)
-        j_cam = np.concatenate([jac @ -skew(cam), jac], axis=-1) * w  # (T, N, 2, 6)
-        j_pt = (jac @ rot[:, None]) * w  # (T, N, 2, 3)
+        j_cam = _pose_jacobian(cam, jac) * w  # (T, N, 2, 6)
+        j_pt = _point_jacobian(jac, rot) * w  # (T, N, 2, 3)
         res = (obs - xy) * w[..., 0]
         jc = j_cam.reshape(num_frames, 2 * n, 6)
         u = np.swapaxes(jc, 1, 2) @ jc  # (T, 6, 6)
         jp = j_pt.transpose(1, 0, 2, 3).reshape(n, 2 * num_frames, 3)
         v = np.swapaxes(jp, 1, 2) @ jp + prior_weight * eye3  # (N, 3, 3)
-        cross = np.swapaxes(j_cam, 2, 3) @ j_pt  # (T, N, 6, 3)
+        cross = j_cam[..., 0, :, None] * j_pt[..., 0, None, :] + j_cam[..., 1, :, None] * j_pt[..., 1, None, :]
+        # (T, N, 6, 3) = j_camᵀ j_pt
         g_cam = (np.swapaxes(jc, 1, 2) @ res.reshape(num_frames, 2 * n, 1))[..., 0]
         g_pt = ((np.swapaxes(jp, 1, 2) @ res.transpose(1, 0, 2).reshape(n, 2 * num_frames, 1))[..., 0]
                 + prior_weight * (prior - points))
@@ -365,7 +405,7 @@ def _bundle_adjust(motion: _Motion, points: np.ndarray, prior: np.ndarray, obs: 
         c = cross.transpose(0, 2, 1, 3).reshape(6 * num_frames, 3 * n)
         frames = np.arange(num_frames)
         while True:
-            vinv = np.linalg.inv(v + damping * np.einsum("nii->ni", v)[..., None] * eye3)
+            vinv = _inverse_3x3(v + damping * np.einsum("nii->ni", v)[..., None] * eye3)
             y = (cross @ vinv).transpose(0, 2, 1, 3).reshape(6 * num_frames, 3 * n)
             reduced = -(y @ c.T)
             blocks = reduced.reshape(num_frames, 6, num_frames, 6)
