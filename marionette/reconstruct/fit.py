@@ -94,10 +94,11 @@ class ReconstructOptions:
     lr_log_scales, lr_opacity, lr_colour, lr_quats : float
         Adam steps of the log-scales, opacity logits, SH DC coefficients, quaternions.
     ssim_weight : float
-        ``λ`` of the D-SSIM term (3DGS uses 0.2). Off by default: at 0.2 it costs ~10 % more
-        time per step; on car-turn (Table 1) it gives +0.003 SSIM and -0.002 LPIPS at 600 and
-        1000 steps, but 150 more steps without it give as much for PSNR and LPIPS, and the synthetic
-        scenes' held-out masked PSNR falls (translation 38.6 -> 36.9 dB).
+        ``λ`` of the D-SSIM term (3DGS uses 0.2). Off by default: at 0.2 a step costs ~10 % more;
+        on car-turn (Table 1) it gives about +0.003 SSIM and -0.002 LPIPS at 600 and 1000 steps
+        (``benchmarks/bench_iterations.py --ssim-weights``), which ~150 more steps without it
+        match for LPIPS and PSNR, and a synthetic scene's held-out masked PSNR falls (translation,
+        50 frames at 854x480: 38.6 -> 36.9 dB).
     mask_weight : float
         ``λ_mask`` of the alpha-vs-mask term.
     densify_every : int
