@@ -39,6 +39,7 @@ from .options import (
     parse_size,
 )
 from .plot import plot_prior
+from .prior import CAMERA_EXTRA, MOTION_FRAMES
 from .progress import Reporter, interrupt_requested
 from .render import render
 from .render.camera_path import CAMERA_MOVES, check_camera_move, load_camera_path
@@ -369,6 +370,9 @@ Refine = Annotated[bool, typer.Option(
 Anchor = Annotated[str, typer.Option(
     help="Turn each part about its own centre ('centroid') or about the source's world origin as the paper "
          "does ('world').")]
+Motion = Annotated[str, typer.Option(
+    help="Move the target as the source camera filmed the object ('filmed': a car a panning camera follows "
+         "turns in view) or as it moved in the world, the camera's own motion removed ('world').")]
 TargetDepth = Annotated[Optional[Path], typer.Option(
     help="Depth map of the target image (16-bit PNG in mm, or .npy) to shape it instead of inflating its silhouette.")]
 TargetShape = Annotated[str, typer.Option(
@@ -417,6 +421,7 @@ class _Playback:
     shape: str
     polish: int
     anchor: str
+    motion: str
     part_seeds: dict[int, tuple[float, float]] | None
     refine: bool
     preview: Path | None
@@ -426,7 +431,7 @@ class _Playback:
 def _playback(output: Path, target: Path, frames, speed, loop, reverse, rotation_scale, translation_scale, fps,
               background, size,
               camera, camera_amount, camera_path, ply_dir, target_mask, target_prompt, target_depth, shape, polish,
-              anchor, part_seed, refine, preview, splats) -> _Playback:
+              anchor, motion, part_seed, refine, preview, splats) -> _Playback:
     """Check every playback option (before any work starts) and the output paths."""
     _transfer_checks(frames, speed, fps)
     _check_loop(loop)
@@ -447,6 +452,8 @@ def _playback(output: Path, target: Path, frames, speed, loop, reverse, rotation
         check_output_folder(ply_dir, pipeline.PLY_FRAME_NAME)
     if anchor not in ("centroid", "world"):
         raise InputError(f"--anchor must be 'centroid' or 'world', got {anchor!r}")
+    if motion not in MOTION_FRAMES:
+        raise InputError(f"--motion must be one of {', '.join(MOTION_FRAMES)}, got {motion!r}")
     if shape != "auto" and shape not in SHAPES:
         raise InputError(f"--shape must be auto or one of {', '.join(SHAPES)}, got {shape!r}")
     if not 0 <= polish <= 10_000:
@@ -460,7 +467,8 @@ def _playback(output: Path, target: Path, frames, speed, loop, reverse, rotation
     return _Playback(frames, speed, loop, reverse, rotation_scale, translation_scale, fps,
                      background, _parsed("--size", parse_size, size),
                      camera, camera_amount, camera_path, ply_dir, target_mask, target_prompt, target_depth, shape,
-                     polish, anchor, _parsed("--part-seed", parse_part_seeds, part_seed or None), refine, preview,
+                     polish, anchor, motion, _parsed("--part-seed", parse_part_seeds, part_seed or None), refine,
+                     preview,
                      splats)
 
 
@@ -481,6 +489,7 @@ def _transfer_and_render(prior, target: Path, output: Path, play: _Playback, ses
         trajectory = pipeline.transfer(prior, lifted, frames=play.frames, speed=play.speed, loop=play.loop,
                                        reverse=play.reverse, rotation_scale=play.rotation_scale,
                                        translation_scale=play.translation_scale, anchor=play.anchor,
+                                       motion=play.motion,
                                        part_seeds=play.part_seeds, refine=RefineOptions() if play.refine else None)
         progress(1, 1)
     scene = play.background == "scene"
@@ -501,7 +510,11 @@ def _transfer_and_render(prior, target: Path, output: Path, play: _Playback, ses
     session.output("video", output)
     session.figures["target"] = {"gaussians": len(lifted.gaussians), "frames": trajectory.num_frames,
                                  "size": [cameras[0].width, cameras[0].height], "fps": play.fps or prior.fps,
-                                 "shape": None if lifted.shape is None else lifted.shape.as_dict()}
+                                 "shape": None if lifted.shape is None else lifted.shape.as_dict(),
+                                 "motion": play.motion if CAMERA_EXTRA in prior.extras else "still camera"}
+    if CAMERA_EXTRA in prior.extras:
+        session.reporter.detail(f"motion {play.motion}: the source camera's own motion "
+                                + ("put back, as it filmed the object" if play.motion == "filmed" else "left out"))
     if play.preview is not None:
         pipeline.write_preview(session.stage(play.preview), video, fps=play.fps or prior.fps)
         session.output("preview", play.preview)
@@ -524,14 +537,15 @@ def transfer(prior: Annotated[Path, typer.Argument(help="SpaT prior .npz.")],
              camera_amount: CameraAmount = None, camera_path: CameraPath = None, ply_dir: PlyDir = None,
              target_mask: TargetMask = None, target_point: TargetPoint = None, target_box: TargetBox = None,
              target_exclude: TargetExclude = None, target_depth: TargetDepth = None, shape: TargetShape = "auto",
-             polish: Polish = 0, anchor: Anchor = "centroid", part_seed: PartSeed = None, refine: Refine = True,
+             polish: Polish = 0, anchor: Anchor = "centroid", motion: Motion = "filmed",
+             part_seed: PartSeed = None, refine: Refine = True,
              preview: Preview = None, splats: Splats = None, quiet: Quiet = False, verbose: Verbose = False,
              json_summary: Json = False, config: Config = None) -> None:
     """Apply a SpaT prior to a target image or .ply and render the video."""
     play = _playback(output, target, frames, speed, loop, reverse, rotation_scale, translation_scale, fps,
                      background, size, camera, camera_amount, camera_path, ply_dir, target_mask,
                      _prompt("target", target_point, target_box, target_exclude), target_depth, shape,
-                     polish, anchor, part_seed, refine, preview, splats)
+                     polish, anchor, motion, part_seed, refine, preview, splats)
     with _session("transfer", quiet, verbose, json_summary) as session:
         _transfer_and_render(read_prior(prior), target, output, play, session)
 
@@ -551,14 +565,15 @@ def run(source: Annotated[Path, typer.Argument(help="Video file or folder of fra
         camera_amount: CameraAmount = None, camera_path: CameraPath = None, ply_dir: PlyDir = None,
         target_mask: TargetMask = None, target_point: TargetPoint = None, target_box: TargetBox = None,
         target_exclude: TargetExclude = None, target_depth: TargetDepth = None, shape: TargetShape = "auto",
-        polish: Polish = 0, anchor: Anchor = "centroid", part_seed: PartSeed = None, refine: Refine = True,
+        polish: Polish = 0, anchor: Anchor = "centroid", motion: Motion = "filmed",
+             part_seed: PartSeed = None, refine: Refine = True,
         preview: Preview = None, splats: Splats = None, side_by_side: SideBySide = None, report: Report = None,
         quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False, config: Config = None) -> None:
     """Extract the source's motion and transfer it onto the target in one go."""
     play = _playback(output, target, frames, speed, loop, reverse, rotation_scale, translation_scale, fps,
                      background, size, camera, camera_amount, camera_path, ply_dir, target_mask,
                      _prompt("target", target_point, target_box, target_exclude), target_depth, shape,
-                     polish, anchor, part_seed, refine, preview, splats)
+                     polish, anchor, motion, part_seed, refine, preview, splats)
     prompt = _prompt("source", source_point, source_box, source_exclude)
     if side_by_side is not None:
         _video_output(side_by_side)

@@ -280,10 +280,15 @@ def check_part_seeds(prior: SpatPrior, part_seeds: dict[int, tuple[float, float]
 
 def transfer(prior: SpatPrior, target: LiftedTarget, *, frames: int | None = None, speed: float = 1.0,
              loop: str = "hold", reverse: bool = False, rotation_scale: float = 1.0,
-             translation_scale: float = 1.0, anchor: str = "centroid",
+             translation_scale: float = 1.0, anchor: str = "centroid", motion: str = "filmed",
              part_seeds: dict[int, tuple[float, float]] | None = None,
              refine: RefineOptions | None = RefineOptions()) -> Trajectory:
     """Move the target as the prior's parts move; (T, N, 3) trajectory out.
+
+    ``motion``: ``"filmed"`` moves it as the source camera saw the object
+    move (a camera motion extraction removed is put back: a car a panning
+    camera follows turns in view), ``"world"`` as the object moved in the
+    world (:meth:`SpatPrior.motion_in`).
 
     With ``anchor="centroid"`` the motion is taken as seen by a source camera
     aimed at the object (:meth:`SpatPrior.aimed_at_object`), since the target
@@ -295,7 +300,7 @@ def transfer(prior: SpatPrior, target: LiftedTarget, *, frames: int | None = Non
     With several parts, ``refine`` (None: off) refines the velocity field
     and turns the parts about their joints (:mod:`~marionette.transfer.refine`).
     """
-    prior = retime(prior, speed=speed, frames=frames, loop=loop, reverse=reverse)
+    prior = retime(prior.motion_in(motion), speed=speed, frames=frames, loop=loop, reverse=reverse)
     prior = scale_motion(prior, rotation=rotation_scale, translation=translation_scale)
     if anchor == "centroid":
         prior = prior.aimed_at_object()

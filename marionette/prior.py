@@ -9,7 +9,7 @@ centroid and size so a transfer can move parts about their own centres.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -17,10 +17,14 @@ from .camera import MAX_IMAGE_SIDE
 from .errors import InputError
 from .geometry import axis_angle_to_matrix, invert_transform
 
-__all__ = ["SpatPrior", "PRIOR_FORMAT", "PRIOR_VERSION"]
+__all__ = ["SpatPrior", "PRIOR_FORMAT", "PRIOR_VERSION", "CAMERA_EXTRA", "MOTION_FRAMES"]
 
 PRIOR_FORMAT = "marionette.spat"
 PRIOR_VERSION = 1
+#: Extra holding the source camera's motion, world_to_camera per frame (T, 4, 4), when extraction removed it.
+CAMERA_EXTRA = "camera_world_to_camera"
+#: What a transfer can move the target by: the motion as the source camera filmed it, or in the world.
+MOTION_FRAMES = ("filmed", "world")
 
 
 @dataclass(frozen=True)
@@ -47,8 +51,9 @@ class SpatPrior:
     radii : (K,) float64
         Part size: RMS distance of its points to its centroid at frame 0.
     extras : dict
-        Optional arrays saved alongside (``tracks``, ``labels``, …); ``metadata``
-        is a JSON-serialisable dict.
+        Optional arrays saved alongside (``tracks``, ``labels``, ``camera_world_to_camera``
+        (T, 4, 4): the source camera's removed motion, …); ``metadata`` is a
+        JSON-serialisable dict.
     """
 
     fps: float
@@ -152,6 +157,31 @@ class SpatPrior:
         return SpatPrior.from_poses(c @ self.poses @ c.T, self.centroids @ np.asarray(rotation).T, self.radii,
                                     fps=self.fps, image_size=tuple(self.image_size), intrinsics=self.intrinsics,
                                     extras=self.extras, metadata=self.metadata)
+
+    def motion_in(self, frame: str) -> "SpatPrior":
+        """The motion in the world (``"world"``, the poses as they are) or as the source camera filmed it
+        (``"filmed"``: the camera's own motion, ``extras[CAMERA_EXTRA]``, put back, ``C_t P_t``).
+
+        A camera that pans to follow a car that drives past films a turn in place; in the world the car
+        drives off, and a target moved that way leaves a still camera's view. A prior without a removed
+        camera motion is the same in both. The camera extra is dropped either way (retimed poses no longer
+        match it).
+        """
+        if frame not in MOTION_FRAMES:
+            raise InputError(f"motion must be one of {', '.join(MOTION_FRAMES)}, got {frame!r}")
+        extras = {k: v for k, v in self.extras.items() if k != CAMERA_EXTRA}
+        cameras = self.extras.get(CAMERA_EXTRA)
+        if cameras is None or frame == "world":
+            return self if len(extras) == len(self.extras) else replace(self, extras=extras)
+        cameras = np.asarray(cameras, dtype=np.float64)
+        if cameras.shape != (self.num_frames, 4, 4) or not np.all(np.isfinite(cameras)) \
+                or not _are_rotations(cameras[:, :3, :3]):
+            raise InputError(f"prior extra '{CAMERA_EXTRA}' must be {self.num_frames} finite rigid 4x4 transforms, "
+                             f"got shape {cameras.shape}")
+        centroids = np.einsum("tij,ktj->kti", cameras[:, :3, :3], self.centroids) + cameras[:, :3, 3]
+        return SpatPrior.from_poses(cameras[None] @ self.poses, centroids, self.radii, fps=self.fps,
+                                    image_size=tuple(self.image_size), intrinsics=self.intrinsics, extras=extras,
+                                    metadata=self.metadata)
 
     def aimed_at_object(self) -> "SpatPrior":
         """The motion seen from the source camera turned to look straight at the object at frame 0.

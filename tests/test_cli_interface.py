@@ -240,3 +240,30 @@ def test_eval_lines_up_a_retimed_result_or_says_it_cannot(retimed, capsys):
     assert summary["figures"]["motion_fidelity"] == pytest.approx(report["motion_fidelity"])
     assert main(args + ["--loop", "bounce"]) == 2
     assert "--loop" in one_error_line(capsys)
+
+
+def test_motion_filmed_puts_the_source_camera_back_and_world_leaves_it_out(tmp_path, prior_file, target_png, capsys):
+    from dataclasses import replace
+
+    from marionette.geometry import axis_angle_to_matrix, make_transform
+    from marionette.io import read_prior, write_prior
+    from marionette.prior import CAMERA_EXTRA
+
+    prior = read_prior(prior_file)
+    pan = np.stack([make_transform(axis_angle_to_matrix([0, 0.08 * i, 0]), [0.05 * i, 0, 0])
+                    for i in range(prior.num_frames)])
+    write_prior(tmp_path / "panned.npz", replace(prior, extras={CAMERA_EXTRA: pan}))
+    videos = {}
+    for name, prior_path, extra in (("filmed", tmp_path / "panned.npz", []),
+                                    ("world", tmp_path / "panned.npz", ["--motion", "world"]),
+                                    ("still", prior_file, [])):
+        out = tmp_path / f"{name}.mp4"
+        assert main(["transfer", str(prior_path), str(target_png), "-o", str(out), "-q", "--json", *extra]) == 0
+        assert json.loads(capsys.readouterr().out)["figures"]["target"]["motion"] == (
+            "still camera" if name == "still" else name)
+        videos[name] = np.asarray(read_video(out).frames)
+    np.testing.assert_array_equal(videos["world"], videos["still"])  # the camera left out: the world motion
+    assert np.abs(videos["filmed"].astype(int) - videos["world"]).max() > 100  # the pan moves the target
+    assert main(["transfer", str(prior_file), str(target_png), "-o", str(tmp_path / "bad.mp4"),
+                 "--motion", "camera"]) == 2
+    assert "--motion" in one_error_line(capsys) and not (tmp_path / "bad.mp4").exists()

@@ -11,6 +11,7 @@ from test_source import H, K, W, disc, rotation_errors, wave_texture
 
 from marionette.errors import InputError
 from marionette.geometry import rotation_angle_deg
+from marionette.prior import CAMERA_EXTRA
 from marionette.progress import Reporter
 from marionette.source import ExtractOptions, extract_prior
 from marionette.source.rigid import RigidOptions
@@ -202,6 +203,13 @@ def test_camera_motion_is_removed():
     assert camera["model"] == "rotation" and camera["background_agreement"] > 0.8
     assert camera["full_pose_agreement"] is None
     assert np.median(rotation_errors(prior.poses[0], scene.poses[0])[1:]) < 1.5
+    # The removed camera is kept, so a transfer can move the target as the pan filmed it.
+    filmed = prior.motion_in("filmed")
+    as_filmed = scene.camera_poses[None] @ scene.poses
+    assert np.median(rotation_errors(filmed.poses[0], as_filmed[0])[1:]) < 1.5
+    assert rotation_errors(filmed.poses[0], prior.poses[0]).max() > 5  # the pan is in it
+    assert CAMERA_EXTRA not in filmed.extras and CAMERA_EXTRA not in prior.motion_in("world").extras
+    np.testing.assert_array_equal(prior.motion_in("world").poses, prior.poses)
 
 
 def test_depth_maps_give_metric_poses():

@@ -97,3 +97,29 @@ def test_aimed_at_object_puts_the_first_centroid_on_the_axis():
     assert np.allclose(c0[:2], 0, atol=1e-9) and c0[2] == pytest.approx(5.0)
     # A pure turn: relative motion (angles, distances) is unchanged.
     assert np.allclose(np.linalg.norm(aimed.translations, axis=-1), np.linalg.norm(off_axis.translations, axis=-1))
+
+
+def test_motion_in_puts_the_removed_camera_back_or_leaves_it_out(tmp_path):
+    from dataclasses import replace
+
+    from marionette.prior import CAMERA_EXTRA
+
+    p = turning_prior()
+    cameras = np.stack([make_transform(axis_angle_to_matrix([0, -0.15 * i, 0.02 * i]), [0.3 * i, 0, -0.1 * i])
+                        for i in range(p.num_frames)])
+    with_camera = replace(p, extras={**p.extras, CAMERA_EXTRA: cameras})
+    write_prior(tmp_path / "p.npz", with_camera)
+    loaded = read_prior(tmp_path / "p.npz")
+    filmed, world = loaded.motion_in("filmed"), loaded.motion_in("world")
+    pts = np.random.default_rng(1).normal(size=(10, 3))
+    for t in range(p.num_frames):  # a frame-0 point where camera t sees it
+        seen = (pts @ p.poses[1, t, :3, :3].T + p.poses[1, t, :3, 3]) @ cameras[t, :3, :3].T + cameras[t, :3, 3]
+        assert np.allclose(pts @ filmed.poses[1, t, :3, :3].T + filmed.poses[1, t, :3, 3], seen)
+        assert np.allclose(filmed.centroids[:, t], p.centroids[:, t] @ cameras[t, :3, :3].T + cameras[t, :3, 3])
+    np.testing.assert_array_equal(world.poses, p.poses)
+    assert CAMERA_EXTRA not in filmed.extras and CAMERA_EXTRA not in world.extras and "labels" in filmed.extras
+    assert p.motion_in("filmed") is p  # a still camera: nothing to put back
+    with pytest.raises(InputError, match="motion must be one of"):
+        p.motion_in("camera")
+    with pytest.raises(InputError, match=CAMERA_EXTRA):
+        replace(p, extras={CAMERA_EXTRA: cameras[:3]}).motion_in("filmed")

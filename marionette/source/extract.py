@@ -35,8 +35,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..errors import InputError
+from ..geometry import invert_transform
 from ..io.video import PackedMasks, VideoFrames
-from ..prior import SpatPrior
+from ..prior import CAMERA_EXTRA, SpatPrior
 from ..progress import ProgressCallback, Reporter
 from .camera_motion import estimate_camera_motion, to_world
 from .depth import DepthMaps, poses_from_depth
@@ -238,7 +239,9 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
         units make the whole object's shape prior 1 unit in RMS radius.
         Extras: ``tracks_uv`` (T, M, 2) float32, ``tracks_visible`` (T, M)
         bool, ``track_labels`` (M,) int16 (part, -1 unused), ``labels``
-        (H, W) int16 (part of each frame-0 object pixel, -1 elsewhere).
+        (H, W) int16 (part of each frame-0 object pixel, -1 elsewhere) and,
+        when the camera's motion was removed, ``camera_world_to_camera``
+        (T, 4, 4) float64 (:meth:`SpatPrior.motion_in` puts it back).
         Metadata: method, options, camera motion, per-stage timings, failed
         frames with reasons, track count, reprojection RMS.
 
@@ -357,13 +360,19 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
 
     parts.sort(key=lambda p: -p.pixels.sum())
     poses = np.stack([p.poses for p in parts])  # (K, T, 4, 4) in camera coordinates
+    cameras = None  # (1, T, 4, 4) world_to_camera, when the camera's motion is removed
     if camera is not None and not camera.static:
         poses = to_world(poses, camera)
+        cameras = camera.world_to_camera[None]
     centres = np.stack([p.centre for p in parts])  # (K, 3)
     if options.smoothing > 0:
         with stages("smoothing", "smoothing", 1) as progress:
             poses = smooth_poses(poses, options.smoothing, centers=centres)
+            if cameras is not None:  # kept jitter-free too: a transfer may put it back (as filmed)
+                cameras = smooth_poses(cameras, options.smoothing, centers=centres[:1])
             progress(1, 1)
+    if cameras is not None:
+        extras[CAMERA_EXTRA] = cameras[0] @ invert_transform(cameras[0, 0])  # frame 0's camera is the world
     centroids = np.einsum("ktij,kj->kti", poses[..., :3, :3], centres) + poses[..., :3, 3]
 
     labels = np.full((h, w), -1, np.int16)
