@@ -34,7 +34,7 @@ parts, start, end, stride, max_side, smooth. Transfer options
 (``[defaults]``, ``[[target]]``, ``[[job]]``; the later wins): frames, speed,
 loop, reverse, rotation_scale, translation_scale, fps, background (``[R, G,
 B]`` or ``"R,G,B"``, 0-1 or 0-255), size, camera, camera_amount,
-camera_path, target_mask, anchor, part_seed (``{0 = [X, Y], …}``) and
+camera_path, target_mask, anchor, motion (``"filmed"`` or ``"world"``), part_seed (``{0 = [X, Y], …}``) and
 format (``"mp4"`` or ``"gif"``). Input paths are relative to the job file.
 
 The batch names every output itself, and only inside the output folder:
@@ -77,7 +77,7 @@ from .errors import InputError
 from .io import read_prior, write_prior
 from .io.atomic import check_output_dir, leftover_temporaries, write_text
 from .options import parse_background, parse_part_seeds, parse_parts, parse_size
-from .prior import SpatPrior
+from .prior import MOTION_FRAMES, SpatPrior
 from .progress import Reporter
 from .render.camera_path import CAMERA_MOVES
 from .source import ExtractOptions
@@ -157,6 +157,7 @@ TRANSFER_OPTIONS = {
     "size": (_shared(parse_size), None), "camera": (_choice(*CAMERA_MOVES), "static"),
     "camera_amount": (_number(-1e4, 1e4), None), "camera_path": (_existing("file"), None),
     "target_mask": (_existing("file"), None), "anchor": (_choice("centroid", "world"), "centroid"),
+    "motion": (_choice(*MOTION_FRAMES), "filmed"),
     "part_seed": (_shared(parse_part_seeds), None), "format": (_choice("mp4", "gif"), "mp4"),
 }
 
@@ -436,7 +437,7 @@ def _job_task(job: Job, extracted: tuple[SpatPrior, float | None, list[str]]) ->
         trajectory = pipeline.transfer(prior, lifted, frames=o["frames"], speed=o["speed"], loop=o["loop"],
                                        reverse=o["reverse"], rotation_scale=o["rotation_scale"],
                                        translation_scale=o["translation_scale"], anchor=o["anchor"],
-                                       part_seeds=o["part_seed"])
+                                       motion=o["motion"], part_seeds=o["part_seed"])
         cameras = pipeline.output_cameras(lifted, trajectory, o["camera"], o["camera_amount"], o["camera_path"])
         pipeline.render_video(job.output, lifted, trajectory, cameras, fps=o["fps"] or prior.fps,
                               background=o["background"])

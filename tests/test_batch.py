@@ -181,6 +181,7 @@ path = "disc.png"
     ("colour = 1\n" + SOURCES + TARGETS, "unknown key 'colour'"),
     ("[defaults]\nspeed = -1\n" + SOURCES + TARGETS, "speed must be a number in (0, 100]"),
     ("[defaults]\nloop = 'forever'\n" + SOURCES + TARGETS, "loop must be one of"),
+    ("[defaults]\nmotion = 'camera'\n" + SOURCES + TARGETS, "motion must be one of"),
     ("[defaults]\nbackground = [300, 0, 0]\n" + SOURCES + TARGETS, "background must be"),
     ("[defaults]\nsize = '8x8'\n" + SOURCES + TARGETS, "size must be"),
     (SOURCES + TARGETS + "[[job]]\nsource = 'spin'\ntarget = 'box'\nparts = 2\n", "parts cannot be set here"),
