@@ -493,6 +493,12 @@ def _transfer_and_render(prior, target: Path, output: Path, play: _Playback, ses
                                        part_seeds=play.part_seeds, refine=RefineOptions() if play.refine else None)
         progress(1, 1)
     scene = play.background == "scene"
+    if play.motion == "world" and CAMERA_EXTRA in prior.extras and not scene:
+        away = pipeline.frames_outside(lifted.gaussians, trajectory, [lifted.camera] * trajectory.num_frames)
+        if away:
+            warnings.warn(f"moved as in the world, the object leaves the photo's view in {away} of "
+                          f"{trajectory.num_frames} frames and the view zooms out to follow it; --motion filmed "
+                          "moves it as the source camera saw it", stacklevel=1)
     cameras = path_cameras or pipeline.output_cameras(lifted, trajectory, play.camera, play.camera_amount,
                                                       framed=not scene)
     background = play.background

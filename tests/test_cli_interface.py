@@ -267,3 +267,20 @@ def test_motion_filmed_puts_the_source_camera_back_and_world_leaves_it_out(tmp_p
     assert main(["transfer", str(prior_file), str(target_png), "-o", str(tmp_path / "bad.mp4"),
                  "--motion", "camera"]) == 2
     assert "--motion" in one_error_line(capsys) and not (tmp_path / "bad.mp4").exists()
+
+
+def test_a_world_motion_that_leaves_the_view_is_flagged(tmp_path, target_png, capsys):
+    from marionette.geometry import make_transform
+    from marionette.io import write_prior
+    from marionette.prior import CAMERA_EXTRA, SpatPrior
+
+    # The object drives off sideways; the camera pans along with it, so as filmed it stays put.
+    t, c = 8, np.array([0.0, 0.0, 4.0])
+    poses = np.stack([make_transform(np.eye(3), [1.5 * i, 0, 0]) for i in range(t)])[None]
+    prior = SpatPrior.from_poses(poses, (c + poses[..., :3, 3]), np.ones(1), fps=12.0, image_size=(64, 48),
+                                 intrinsics=np.eye(3), extras={CAMERA_EXTRA: np.linalg.inv(poses[0])})
+    write_prior(tmp_path / "p.npz", prior)
+    for motion, flagged in (("filmed", False), ("world", True)):
+        assert main(["transfer", str(tmp_path / "p.npz"), str(target_png), "-o", str(tmp_path / f"{motion}.mp4"),
+                     "--motion", motion]) == 0
+        assert ("leaves the photo's view" in capsys.readouterr().err) == flagged
