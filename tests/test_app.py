@@ -98,6 +98,17 @@ def test_two_sessions_at_once_each_get_their_own_video(app, inputs):
     assert counts == [FRAMES, 2 * FRAMES - 1]  # each session's own speed: nothing shared
 
 
+@pytest.mark.parametrize("settings, message", [
+    ({"speed": 0}, "speed must be within"),
+    ({"camera": "crane"}, "camera must be one of"),
+    ({"motion": "camera"}, "motion must be one of"),
+])
+def test_bad_run_settings_get_a_message(app, settings, message):
+    session = call(app, "/api/session")[1]["session"]
+    status, reply = call(app, f"/api/run?session={session}", settings)
+    assert status == 400 and message in reply["error"]
+
+
 @pytest.mark.parametrize("name, data, message", [
     ("notes.txt", b"hello", "is not a video or an image"),
     ("clip.mp4", b"not a video at all", "cannot be read"),

@@ -38,12 +38,13 @@ _MAX_SIDE = pipeline.DEFAULT_MAX_SIDE
 
 @dataclass(frozen=True)
 class Settings:
-    """What the page sets for a run: playback, camera, background, and the prompts (pixels of the first source
-    frame and of the photo, as uploaded)."""
+    """What the page sets for a run: playback, camera, motion (filmed or world), background, and the prompts
+    (pixels of the first source frame and of the photo, as uploaded)."""
 
     speed: float = 1.0
     frames: int | None = None
     camera: str = "static"
+    motion: str = "filmed"
     background: tuple[float, float, float] | str = (1.0, 1.0, 1.0)
     source_prompt: Prompt | None = None
     target_prompt: Prompt | None = None
@@ -145,7 +146,8 @@ class Session:
                 lifted = pipeline.load_target(self.target, options=LiftOptions(), prior=prior,
                                               prompt=settings.target_prompt)
             with reporter.stage("transfer", 1):
-                trajectory = pipeline.transfer(prior, lifted, frames=settings.frames, speed=settings.speed)
+                trajectory = pipeline.transfer(prior, lifted, frames=settings.frames, speed=settings.speed,
+                                               motion=settings.motion)
             scene = settings.background == "scene"
             cameras = pipeline.output_cameras(lifted, trajectory, settings.camera, framed=not scene)
             background = settings.background

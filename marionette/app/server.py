@@ -28,6 +28,7 @@ from urllib.parse import parse_qs, urlparse
 
 from ..errors import InputError
 from ..options import parse_background
+from ..prior import MOTION_FRAMES
 from ..render.camera_path import CAMERA_MOVES
 from ..segment import Prompt
 from .jobs import Sessions, Settings
@@ -73,13 +74,17 @@ def _settings(body: dict) -> Settings:
     camera = body.get("camera", "static")
     if camera not in CAMERA_MOVES:
         raise InputError(f"camera must be one of {', '.join(CAMERA_MOVES)}, got {camera!r}")
+    motion = body.get("motion", "filmed")
+    if motion not in MOTION_FRAMES:
+        raise InputError(f"motion must be one of {', '.join(MOTION_FRAMES)}, got {motion!r}")
     background = body.get("background", "1,1,1")
     if background != "scene":
         try:
             background = parse_background(background)
         except ValueError as e:
             raise InputError(f"background {e}, got {background!r}") from None
-    return Settings(speed, frames, camera, background, _prompt(body.get("source")), _prompt(body.get("target")))
+    return Settings(speed, frames, camera, motion, background, _prompt(body.get("source")),
+                    _prompt(body.get("target")))
 
 
 class _Handler(BaseHTTPRequestHandler):
