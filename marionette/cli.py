@@ -468,8 +468,7 @@ def _playback(output: Path, target: Path, frames, speed, loop, reverse, rotation
                      background, _parsed("--size", parse_size, size),
                      camera, camera_amount, camera_path, ply_dir, target_mask, target_prompt, target_depth, shape,
                      polish, anchor, motion, _parsed("--part-seed", parse_part_seeds, part_seed or None), refine,
-                     preview,
-                     splats)
+                     preview, splats)
 
 
 def _transfer_and_render(prior, target: Path, output: Path, play: _Playback, session: _Session):
@@ -572,7 +571,7 @@ def run(source: Annotated[Path, typer.Argument(help="Video file or folder of fra
         target_mask: TargetMask = None, target_point: TargetPoint = None, target_box: TargetBox = None,
         target_exclude: TargetExclude = None, target_depth: TargetDepth = None, shape: TargetShape = "auto",
         polish: Polish = 0, anchor: Anchor = "centroid", motion: Motion = "filmed",
-             part_seed: PartSeed = None, refine: Refine = True,
+        part_seed: PartSeed = None, refine: Refine = True,
         preview: Preview = None, splats: Splats = None, side_by_side: SideBySide = None, report: Report = None,
         quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False, config: Config = None) -> None:
     """Extract the source's motion and transfer it onto the target in one go."""
