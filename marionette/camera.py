@@ -131,18 +131,23 @@ class Camera:
         k[1, 2] = (k[1, 2] + 0.5) * sy - 0.5
         return replace(self, K=k, width=width, height=height)
 
-    def framing(self, points: np.ndarray, margin: float = 0.06) -> "Camera":
+    def framing(self, points: np.ndarray, margin: float = 0.06, near: float = 0.25) -> "Camera":
         """This camera zoomed out and re-centred just enough to keep ``points`` in view.
 
         ``points`` (M, 3) in world coordinates (e.g. every frame of a
-        trajectory); those behind the camera are ignored. The focal length only
-        ever shrinks, and the principal point moves as little as needed to
-        keep every point ``margin`` (a fraction of the image side) inside.
+        trajectory); those behind the camera are ignored, and so are those
+        nearer than ``near`` times the median depth of the others: an object
+        that comes up to the lens in a few frames would otherwise shrink every
+        other frame to a dot (those few frames overflow the picture instead).
+        The focal length only ever shrinks, and the principal point moves as
+        little as needed to keep every point ``margin`` (a fraction of the
+        image side) inside.
         """
         pc = self.world_to_camera_points(np.asarray(points, dtype=np.float64))
         pc = pc[pc[:, 2] > 1e-9]
         if not len(pc):
             return self
+        pc = pc[pc[:, 2] >= near * np.median(pc[:, 2])]
         n = pc[:, :2] / pc[:, 2:3]  # normalised image coordinates
         lo, hi = n.min(axis=0), n.max(axis=0)
         f = np.array([self.fx, self.fy])

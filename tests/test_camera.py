@@ -66,3 +66,12 @@ def test_framing_keeps_points_in_view_and_leaves_fitting_views_alone():
     assert framed.fx < cam.fx and framed.fx == framed.fy
     # Zoomed out only as far as needed: the widest span fills the room exactly.
     assert uv[:, 0].max() - uv[:, 0].min() == pytest.approx(0.8 * 200)
+
+
+def test_framing_leaves_out_frames_that_come_up_to_the_lens():
+    cam = Camera.from_fov(200, 100, 60.0)
+    path = np.array([[0.0, 0.0, 5.0], [-6.0, 0.5, 4.0], [-3.0, -1.0, 6.0]])
+    close = np.array([[1.5, 0.1, 0.2]])  # within a quarter of the path's median depth, far to the right
+    framed = cam.framing(np.concatenate([path, close]))
+    np.testing.assert_allclose(framed.K, cam.framing(path).K)
+    assert cam.framing(np.concatenate([path, close]), near=0.0).fx < 0.2 * framed.fx  # what it would cost
