@@ -34,8 +34,9 @@ parts, start, end, stride, max_side, smooth. Transfer options
 (``[defaults]``, ``[[target]]``, ``[[job]]``; the later wins): frames, speed,
 loop, reverse, rotation_scale, translation_scale, fps, background (``[R, G,
 B]`` or ``"R,G,B"``, 0-1 or 0-255), size, camera, camera_amount,
-camera_path, target_mask, anchor, motion (``"filmed"`` or ``"world"``), part_seed (``{0 = [X, Y], …}``) and
-format (``"mp4"`` or ``"gif"``). Input paths are relative to the job file.
+camera_path, target_mask, anchor, motion (``"filmed"`` or ``"world"``),
+part_seed (``{0 = [X, Y], …}``) and format (``"mp4"`` or ``"gif"``). Input
+paths are relative to the job file.
 
 The batch names every output itself, and only inside the output folder:
 ``priors/<source>.npz``, ``<job>.mp4`` (or ``.gif``), ``results.csv``,
