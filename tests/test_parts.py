@@ -24,11 +24,7 @@ from marionette.source.parts import (
     STATIC,
     _errors,
     _fit_motion,
-    _inverse_3x3,
-    _point_jacobian,
-    _pose_jacobian,
     _Problem,
-    _project,
     segment_parts,
 )
 from marionette.source.rigid import ShapePrior
@@ -84,34 +80,6 @@ def hinge():
 
 
 # --- the rigid motion model ----------------------------------------------------------------------------------------
-
-
-def test_written_out_jacobians_match_their_matrix_forms_and_finite_differences():
-    from marionette.geometry import skew
-
-    rng = np.random.default_rng(2)
-    rot = np.stack([axis_angle_to_matrix(v) for v in rng.normal(0, 0.6, (4, 3))])
-    trans = rng.normal(0, 0.2, (4, 3)) + [0.0, 0.0, 3.0]
-    points = rng.normal(0, 0.5, (7, 3))
-    cam = points @ np.swapaxes(rot, 1, 2) + trans[:, None]  # (4, 7, 3)
-    xy, jac = _project(cam)
-    j_pose, j_point = _pose_jacobian(cam, jac), _point_jacobian(jac, rot)
-    np.testing.assert_allclose(j_pose, np.concatenate([jac @ -skew(cam), jac], axis=-1), atol=1e-14)
-    np.testing.assert_allclose(j_point, jac @ rot[:, None], atol=1e-14)
-    eps = 1e-6
-    for k in range(6):  # left perturbation of frame 2's pose
-        step = np.zeros(6)
-        step[k] = eps
-        moved = [(axis_angle_to_matrix(s * step[:3]) @ cam[2].T).T + s * step[3:] for s in (1, -1)]
-        numeric = (_project(moved[0])[0] - _project(moved[1])[0]) / (2 * eps)
-        np.testing.assert_allclose(j_pose[2, :, :, k], numeric, atol=1e-7)
-    for k in range(3):  # point 5 moved in frame-0 space
-        delta = np.zeros(3)
-        delta[k] = eps
-        numeric = (_project(cam[:, 5] + rot @ delta)[0] - _project(cam[:, 5] - rot @ delta)[0]) / (2 * eps)
-        np.testing.assert_allclose(j_point[:, 5, :, k], numeric, atol=1e-7)
-    m = rng.normal(size=(20, 3, 3)) + 2 * np.eye(3)
-    np.testing.assert_allclose(_inverse_3x3(m) @ m, np.broadcast_to(np.eye(3), m.shape), atol=1e-12)
 
 
 def test_rigid_motion_explains_its_body_exactly_and_not_another():

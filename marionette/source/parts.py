@@ -111,6 +111,14 @@ from scipy.spatial import cKDTree
 
 from ..errors import InputError
 from ..geometry import axis_angle_to_matrix
+from .part_normals import (
+    initial_motion,
+    normal_blocks,
+    point_steps,
+    reduced_system,
+    reprojection_cost,
+    triangulate_points,
+)
 from .tracks import Tracks
 
 __all__ = ["PartSegmentation", "segment_parts", "STATIC", "OUTLIER", "OFF_OBJECT"]
@@ -197,91 +205,6 @@ class PartSegmentation:
 # ------------------------------------------------------------------ rigid motion model
 
 
-def _project(points: np.ndarray, jacobian: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
-    """Camera points (..., 3) → normalised image points (..., 2) and (with ``jacobian``) their Jacobian (..., 2, 3).
-
-    Depths are floored at 1 % of the object's (about 1, the gauge), so
-    that a point pushed behind the camera by a wrong motion stays finite.
-    """
-    z = np.maximum(points[..., 2], 1e-2)
-    xy = points[..., :2] / z[..., None]
-    if not jacobian:
-        return xy, None
-    jac = np.zeros(points.shape[:-1] + (2, 3))
-    jac[..., 0, 0] = jac[..., 1, 1] = 1.0 / z
-    jac[..., :, 2] = -xy / z[..., None]
-    return xy, jac
-
-
-# The Jacobians below are ``jac @ -skew(cam)`` and ``jac @ rot`` written out entry by entry (``jac`` is
-# [[a, 0, b], [0, a, c]]): numpy's products of stacked 3x3 matrices are slow, and their rounding follows
-# the BLAS kernel, which the part decision must not.
-
-
-def _pose_jacobian(cam: np.ndarray, jac: np.ndarray) -> np.ndarray:
-    """(..., 2, 6) Jacobian of the projections of camera points ``cam`` (..., 3) with respect to their frame's
-    pose (left perturbation: rotation, then translation); ``jac`` (..., 2, 3) from :func:`_project`."""
-    a, b, c = jac[..., 0, 0], jac[..., 0, 2], jac[..., 1, 2]
-    x, y, z = cam[..., 0], cam[..., 1], cam[..., 2]
-    out = np.empty(cam.shape[:-1] + (2, 6))
-    out[..., 0, 0], out[..., 0, 1], out[..., 0, 2] = b * y, a * z - b * x, -a * y
-    out[..., 1, 0], out[..., 1, 1], out[..., 1, 2] = c * y - a * z, -c * x, a * x
-    out[..., 3:] = jac
-    return out
-
-
-def _point_jacobian(jac: np.ndarray, rot: np.ndarray) -> np.ndarray:
-    """(T, N, 2, 3) Jacobian of the projections with respect to the frame-0 points: ``jac`` (T, N, 2, 3) from
-    :func:`_project`, rotations ``rot`` (T, 3, 3)."""
-    a, b, c = jac[..., 0, 0, None], jac[..., 0, 2, None], jac[..., 1, 2, None]
-    r0, r1, r2 = rot[:, None, 0], rot[:, None, 1], rot[:, None, 2]  # (T, 1, 3) rows
-    return np.stack([a * r0 + b * r2, a * r1 + c * r2], axis=-2)
-
-
-def _inverse_3x3(m: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) inverses of invertible matrices (N, 3, 3), by the adjugate."""
-    adj = np.empty_like(m)
-    for i in range(3):
-        for j in range(3):
-            # Cofactor of entry (j, i): rows other than j, columns other than i, cyclically ordered.
-            r1, r2, c1, c2 = (j + 1) % 3, (j + 2) % 3, (i + 1) % 3, (i + 2) % 3
-            adj[:, i, j] = m[:, r1, c1] * m[:, r2, c2] - m[:, r1, c2] * m[:, r2, c1]
-    det = m[:, 0, 0] * adj[:, 0, 0] + m[:, 0, 1] * adj[:, 1, 0] + m[:, 0, 2] * adj[:, 2, 0]
-    return adj / det[:, None, None]
-
-
-def _move(rot: np.ndarray, trans: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Frame-0 points (N, 3) moved by each frame's pose (T, 3, 3), (T, 3) → camera points (T, N, 3)."""
-    return points @ np.swapaxes(rot, 1, 2) + trans[:, None]
-
-
-def _refine_poses(rot: np.ndarray, trans: np.ndarray, points: np.ndarray, obs: np.ndarray, weights: np.ndarray,
-                  iterations: int) -> tuple[np.ndarray, np.ndarray]:
-    """Gauss–Newton on each frame's pose, all frames at once.
-
-    rot (T, 3, 3), trans (T, 3); points (N, 3) frame-0 points; obs (T, N, 2)
-    normalised observations; weights (T, N) (0 where not observed).
-    Left perturbation ``R ← exp(ω) R, T ← exp(ω) T + δ``. Returns the
-    refined rot, trans.
-    """
-    num_frames, n = weights.shape
-    sw = np.sqrt(weights)[..., None]
-    for _ in range(iterations):
-        cam = _move(rot, trans, points)
-        xy, jac = _project(cam)
-        jw = _pose_jacobian(cam, jac) * sw[..., None]  # (T, N, 2, 6)
-        jw = jw.reshape(num_frames, 2 * n, 6)
-        res = ((obs - xy) * sw).reshape(num_frames, 2 * n, 1)
-        jt = np.swapaxes(jw, 1, 2)
-        hess = jt @ jw
-        hess += (1e-6 * np.trace(hess, axis1=1, axis2=2)[:, None, None] + 1e-12) * np.eye(6)
-        step = np.linalg.solve(hess, jt @ res)[..., 0]  # (T, 6)
-        turn = axis_angle_to_matrix(step[:, :3])
-        rot = turn @ rot
-        trans = np.einsum("tij,tj->ti", turn, trans) + step[:, 3:]
-    return rot, trans
-
-
 def _prior_points(motion: _Motion, obs: np.ndarray, vis: np.ndarray) -> np.ndarray:
     """(M, 3) each track's first ray in a known frame, at the motion's depth there, moved back to frame 0."""
     start = np.argmax(vis, axis=0)
@@ -301,22 +224,9 @@ def _triangulate(motion: _Motion, obs: np.ndarray, vis: np.ndarray, prior_weight
     decide. Returns points (M, 3), errors (T, M) (normalised units², 0
     where not counted) and the counted observations (T, M) bool.
     """
-    rot, trans = motion.rotations, motion.translations
-    vis = vis & motion.known[:, None]
-    m = vis.shape[1]
-    prior = _prior_points(motion, obs, vis)
-    points = prior.copy()
-    w = vis.astype(np.float64)[..., None, None]
-    for _ in range(iterations):
-        cam = _move(rot, trans, points)
-        xy, jac = _project(cam)
-        jw = (_point_jacobian(jac, rot) * w).transpose(1, 0, 2, 3).reshape(m, -1, 3)  # (M, 2T, 3)
-        res = ((obs - xy) * w[..., 0]).transpose(1, 0, 2).reshape(m, -1, 1)
-        jt = np.swapaxes(jw, 1, 2)
-        rhs = (jt @ res)[..., 0] + prior_weight * (prior - points)
-        points = points + (_inverse_3x3(jt @ jw + prior_weight * np.eye(3)) * rhs[:, None, :]).sum(axis=-1)
-    xy, _ = _project(_move(rot, trans, points), jacobian=False)
-    err = np.where(vis, ((obs - xy) ** 2).sum(axis=-1), 0.0)
+    vis = np.ascontiguousarray(vis & motion.known[:, None])
+    points, err = triangulate_points(motion.rotations, motion.translations, _prior_points(motion, obs, vis),
+                                     np.ascontiguousarray(obs, dtype=np.float64), vis, prior_weight, iterations)
     return points, err, vis
 
 
@@ -332,38 +242,10 @@ def _depths(rot: np.ndarray, trans: np.ndarray, points: np.ndarray, vis: np.ndar
 
 
 def _initial_motion(obs: np.ndarray, vis: np.ndarray, min_points: int) -> _Motion:
-    """Frame-by-frame poses of N tracks from a fronto-parallel start at depth 1.
-
-    obs (T, N, 2), vis (T, N). The tracks seen in the first frame with at
-    least ``min_points`` of them sit at depth 1 on their rays (its pose is
-    identity, like every frame before it); at each later frame with
-    ``min_points`` lifted tracks the pose follows from them (a few
-    Gauss–Newton steps from the previous pose; other frames hold it), then
-    the tracks seen for the first time are lifted onto their rays at the
-    median depth of the others.
-    """
-    num_frames, n = vis.shape
-    rot, trans = np.tile(np.eye(3), (num_frames, 1, 1)), np.zeros((num_frames, 3))
-    depths = np.ones(num_frames)
-    known = np.zeros(num_frames, bool)
-    points = np.full((n, 3), np.nan)
-    for t in range(num_frames):
-        if t > 0:
-            rot[t], trans[t], depths[t] = rot[t - 1], trans[t - 1], depths[t - 1]
-        seen = vis[t] & ~np.isnan(points[:, 0])
-        if seen.sum() >= min_points:
-            r, tr = _refine_poses(rot[t:t + 1], trans[t:t + 1], points[seen], obs[t:t + 1, seen],
-                                  np.ones((1, seen.sum())), iterations=3)
-            rot[t], trans[t] = r[0], tr[0]
-            depths[t] = np.median(points[seen] @ rot[t, 2] + trans[t, 2])
-            known[t] = True
-        new = vis[t] & np.isnan(points[:, 0])
-        if not known.any() and new.sum() < min_points:
-            continue
-        known[t] = True
-        ray = np.concatenate([obs[t, new], np.ones((new.sum(), 1))], axis=1) * depths[t]
-        points[new] = (ray - trans[t]) @ rot[t]
-    return _Motion(rot, trans, depths, known)
+    """Frame-by-frame poses of N tracks (obs (T, N, 2), vis (T, N)) from a fronto-parallel start at depth 1
+    (:func:`~.part_normals.initial_motion`)."""
+    return _Motion(*initial_motion(np.ascontiguousarray(obs, dtype=np.float64), np.ascontiguousarray(vis),
+                                   min_points))
 
 
 def _bundle_adjust(motion: _Motion, points: np.ndarray, prior: np.ndarray, obs: np.ndarray, vis: np.ndarray,
@@ -373,50 +255,25 @@ def _bundle_adjust(motion: _Motion, points: np.ndarray, prior: np.ndarray, obs: 
     points, prior (N, 3); obs (T, N, 2); vis (T, N). The first known frame
     stays fixed (the gauge); the prior term ``prior_weight |X - prior|²`` fixes the
     scale and what the observations leave free. The reduced camera system is
-    dense, 6T x 6T, cheap for T of a few hundred. Returns the motion and points.
+    dense, 6T x 6T, cheap for T of a few hundred (:mod:`.part_normals`).
+    Returns the motion and points.
     """
-    num_frames, n = vis.shape
-    w = vis.astype(np.float64)[..., None, None]
-    eye6, eye3 = np.eye(6), np.eye(3)
-
-    def cost(rot, trans, pts):
-        xy, _ = _project(_move(rot, trans, pts), jacobian=False)
-        return float((w[..., 0] * (obs - xy) ** 2).sum() + prior_weight * ((pts - prior) ** 2).sum())
-
+    num_frames = len(vis)
+    vis = np.ascontiguousarray(vis)
+    obs, prior = np.ascontiguousarray(obs, dtype=np.float64), np.ascontiguousarray(prior, dtype=np.float64)
     rot, trans = motion.rotations, motion.translations
     gauge = int(np.argmax(motion.known))
-    current, damping = cost(rot, trans, points), 1e-3
+    current, damping = reprojection_cost(rot, trans, points, prior, obs, vis, prior_weight), 1e-3
     for _ in range(iterations):
-        cam = _move(rot, trans, points)
-        xy, jac = _project(cam)
-        j_cam = _pose_jacobian(cam, jac) * w  # (T, N, 2, 6)
-        j_pt = _point_jacobian(jac, rot) * w  # (T, N, 2, 3)
-        res = (obs - xy) * w[..., 0]
-        jc = j_cam.reshape(num_frames, 2 * n, 6)
-        u = np.swapaxes(jc, 1, 2) @ jc  # (T, 6, 6)
-        jp = j_pt.transpose(1, 0, 2, 3).reshape(n, 2 * num_frames, 3)
-        v = np.swapaxes(jp, 1, 2) @ jp + prior_weight * eye3  # (N, 3, 3)
-        cross = j_cam[..., 0, :, None] * j_pt[..., 0, None, :] + j_cam[..., 1, :, None] * j_pt[..., 1, None, :]
-        # (T, N, 6, 3) = j_camᵀ j_pt
-        g_cam = (np.swapaxes(jc, 1, 2) @ res.reshape(num_frames, 2 * n, 1))[..., 0]
-        g_pt = ((np.swapaxes(jp, 1, 2) @ res.transpose(1, 0, 2).reshape(n, 2 * num_frames, 1))[..., 0]
-                + prior_weight * (prior - points))
-        u[gauge] += 1e12 * eye6  # the gauge: the first known frame does not move
-        c = cross.transpose(0, 2, 1, 3).reshape(6 * num_frames, 3 * n)
-        frames = np.arange(num_frames)
+        u, v, w, g_cam, g_pt = normal_blocks(rot, trans, points, prior, obs, vis, prior_weight)
+        u[gauge] += 1e12 * np.eye(6)  # the gauge: the first known frame does not move
         while True:
-            vinv = _inverse_3x3(v + damping * np.einsum("nii->ni", v)[..., None] * eye3)
-            y = (cross @ vinv).transpose(0, 2, 1, 3).reshape(6 * num_frames, 3 * n)
-            reduced = -(y @ c.T)
-            blocks = reduced.reshape(num_frames, 6, num_frames, 6)
-            blocks[frames, :, frames, :] += u + damping * (np.einsum("tii->ti", u)[..., None] * eye6 + 1e-12 * eye6)
-            rhs = g_cam.ravel() - y @ g_pt.ravel()
+            reduced, rhs, vinv = reduced_system(u, v, w, vis, g_cam, g_pt, damping)
             d_cam = np.linalg.solve(reduced, rhs).reshape(num_frames, 6)
-            d_pt = (vinv @ (g_pt - (c.T @ d_cam.ravel()).reshape(n, 3))[..., None])[..., 0]
             turn = axis_angle_to_matrix(d_cam[:, :3])
             new_rot, new_trans = turn @ rot, np.einsum("tij,tj->ti", turn, trans) + d_cam[:, 3:]
-            new_points = points + d_pt
-            trial = cost(new_rot, new_trans, new_points)
+            new_points = points + point_steps(vinv, w, vis, g_pt, d_cam)
+            trial = reprojection_cost(new_rot, new_trans, new_points, prior, obs, vis, prior_weight)
             if trial <= current or damping > 1e6:
                 break
             damping *= 10.0
