@@ -11,13 +11,14 @@ import numpy as np
 
 from marionette.geometry import axis_angle_to_matrix
 from marionette.source.part_normals import (
-    initial_motion,
     normal_blocks,
     point_steps,
     reduced_system,
+    refine_pose,
     reprojection_cost,
     triangulate_points,
 )
+from marionette.source.parts import _initial_motion
 
 
 def project(rot: np.ndarray, trans: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -127,6 +128,15 @@ def test_points_are_triangulated_from_exact_projections():
     assert err[vis].min() > 0
 
 
+def test_a_perturbed_pose_comes_back_from_exact_projections():
+    rot, trans, points, _, _, _ = scene(num_frames=1, num_points=15, seed=5)
+    obs = project(rot, trans, points)[0]
+    start_rot, start_trans = axis_angle_to_matrix(np.array([0.05, -0.04, 0.03])) @ rot[0], trans[0] + [0.05, 0, -0.1]
+    refine_pose(start_rot, start_trans, points, obs, 6)  # in place
+    np.testing.assert_allclose(start_rot, rot[0], atol=1e-10)
+    np.testing.assert_allclose(start_trans, trans[0], atol=1e-10)
+
+
 def test_the_initial_motion_recovers_a_fronto_parallel_plane_exactly():
     # Points on the plane z = 1 are where the initial motion lifts frame 0's tracks, so the poses of a
     # small turn and drift come back exactly.
@@ -137,7 +147,7 @@ def test_the_initial_motion_recovers_a_fronto_parallel_plane_exactly():
     trans = steps * [0.04, 0.02, -0.05] + np.einsum("tij,j->ti", np.eye(3) - rot, [0.0, 0.0, 1.0])
     vis = np.ones((10, 30), bool)
     obs = np.where(vis[..., None], project(rot, trans, points), 0.0)
-    found_rot, found_trans, depths, known = initial_motion(obs, vis, 4)
+    found_rot, found_trans, depths, known = _initial_motion(obs, vis, 4)
     assert known.all()
     np.testing.assert_allclose(found_rot, rot, atol=1e-8)
     np.testing.assert_allclose(found_trans, trans, atol=1e-8)
@@ -146,6 +156,6 @@ def test_the_initial_motion_recovers_a_fronto_parallel_plane_exactly():
     # Too few tracks in the first frames: those frames are not known and keep the identity.
     sparse_vis = vis.copy()
     sparse_vis[:2, 3:] = False
-    found_rot, found_trans, _, known = initial_motion(np.where(sparse_vis[..., None], obs, 0.0), sparse_vis, 4)
+    found_rot, found_trans, _, known = _initial_motion(np.where(sparse_vis[..., None], obs, 0.0), sparse_vis, 4)
     assert not known[:2].any() and known[2:].all()
     np.testing.assert_array_equal(found_rot[:2], np.tile(np.eye(3), (2, 1, 1)))

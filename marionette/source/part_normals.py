@@ -19,8 +19,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["normal_blocks", "reduced_system", "point_steps", "reprojection_cost", "initial_motion",
-           "triangulate_points"]
+__all__ = ["normal_blocks", "reduced_system", "point_steps", "reprojection_cost", "refine_pose", "triangulate_points"]
 
 _MIN_DEPTH = 1e-2
 
@@ -235,22 +234,21 @@ def _solve_spd6(a, b):
 
 
 @numba.njit(cache=True)
-def _refine_pose(rot, trans, points, index, obs, iterations):
+def refine_pose(rot, trans, points, obs, iterations):
     """Gauss–Newton on one frame's pose (rot (3, 3), trans (3,), updated in place) from the points
-    ``points[index]`` (N, 3) observed at ``obs[index]`` (normalised, (N, 2)); a ridge of 1e-6 of the
-    trace keeps the step defined."""
+    (N, 3) observed at ``obs`` (N, 2, normalised); a ridge of 1e-6 of the trace keeps the step defined."""
     cam, jc, jp = np.empty(3), np.empty((2, 6)), np.empty((2, 3))
     hess, grad, turn = np.empty((6, 6)), np.empty(6), np.empty((3, 3))
     for _ in range(iterations):
         hess[:] = 0.0
         grad[:] = 0.0
-        for m in index:
+        for m in range(len(points)):
             r0, r1 = _observation(rot, trans, points[m], obs[m], cam, jc, jp)
             for i in range(6):
                 grad[i] += jc[0, i] * r0 + jc[1, i] * r1
                 for j in range(6):
                     hess[i, j] += jc[0, i] * jc[0, j] + jc[1, i] * jc[1, j]
-        ridge = 1e-6 * np.trace(hess) + 1e-12
+        ridge = 1e-6 * (hess[0, 0] + hess[1, 1] + hess[2, 2] + hess[3, 3] + hess[4, 4] + hess[5, 5]) + 1e-12
         for i in range(6):
             hess[i, i] += ridge
         step = _solve_spd6(hess, grad)
@@ -266,51 +264,6 @@ def _turn_pose(turn, shift, rot, trans):
         for j in range(3):
             rot[i, j] = turn[i, 0] * old_rot[0, j] + turn[i, 1] * old_rot[1, j] + turn[i, 2] * old_rot[2, j]
         trans[i] = turn[i, 0] * old_trans[0] + turn[i, 1] * old_trans[1] + turn[i, 2] * old_trans[2] + shift[i]
-
-
-@numba.njit(cache=True)
-def initial_motion(obs, vis, min_points):
-    """Frame-by-frame poses of N tracks from a fronto-parallel start at depth 1.
-
-    obs (T, N, 2) normalised, vis (T, N) bool. The tracks seen in the first frame
-    with at least ``min_points`` of them sit at depth 1 on their rays (its pose is
-    identity, like every frame before it); at each later frame with ``min_points``
-    lifted tracks the pose follows from them (three Gauss–Newton steps from the
-    previous pose; other frames hold it), then the tracks seen for the first time
-    are lifted onto their rays at the median depth of the others. Returns
-    rotations (T, 3, 3), translations (T, 3), depths (T,) and known (T,) bool.
-    """
-    num_frames, n = vis.shape
-    rot = np.zeros((num_frames, 3, 3))
-    trans = np.zeros((num_frames, 3))
-    depths = np.ones(num_frames)
-    known = np.zeros(num_frames, np.bool_)
-    points = np.full((n, 3), np.nan)
-    for i in range(3):
-        rot[:, i, i] = 1.0
-    for t in range(num_frames):
-        if t > 0:
-            rot[t], trans[t], depths[t] = rot[t - 1], trans[t - 1], depths[t - 1]
-        seen = np.nonzero(vis[t] & ~np.isnan(points[:, 0]))[0]
-        if len(seen) >= min_points:
-            _refine_pose(rot[t], trans[t], points, seen, obs[t], 3)
-            z = np.empty(len(seen))
-            for a in range(len(seen)):
-                m = seen[a]
-                z[a] = rot[t, 2, 0] * points[m, 0] + rot[t, 2, 1] * points[m, 1] + rot[t, 2, 2] * points[m, 2] \
-                    + trans[t, 2]
-            depths[t] = np.median(z)
-            known[t] = True
-        new = np.nonzero(vis[t] & np.isnan(points[:, 0]))[0]
-        if not known.any() and len(new) < min_points:
-            continue
-        known[t] = True
-        for m in new:  # X = Rᵀ (ray · depth - T)
-            ray = (obs[t, m, 0] * depths[t] - trans[t, 0], obs[t, m, 1] * depths[t] - trans[t, 1],
-                   depths[t] - trans[t, 2])
-            for i in range(3):
-                points[m, i] = rot[t, 0, i] * ray[0] + rot[t, 1, i] * ray[1] + rot[t, 2, i] * ray[2]
-    return rot, trans, depths, known
 
 
 @numba.njit(cache=True)

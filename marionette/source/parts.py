@@ -112,10 +112,10 @@ from scipy.spatial import cKDTree
 from ..errors import InputError
 from ..geometry import axis_angle_to_matrix
 from .part_normals import (
-    initial_motion,
     normal_blocks,
     point_steps,
     reduced_system,
+    refine_pose,
     reprojection_cost,
     triangulate_points,
 )
@@ -242,10 +242,37 @@ def _depths(rot: np.ndarray, trans: np.ndarray, points: np.ndarray, vis: np.ndar
 
 
 def _initial_motion(obs: np.ndarray, vis: np.ndarray, min_points: int) -> _Motion:
-    """Frame-by-frame poses of N tracks (obs (T, N, 2), vis (T, N)) from a fronto-parallel start at depth 1
-    (:func:`~.part_normals.initial_motion`)."""
-    return _Motion(*initial_motion(np.ascontiguousarray(obs, dtype=np.float64), np.ascontiguousarray(vis),
-                                   min_points))
+    """Frame-by-frame poses of N tracks from a fronto-parallel start at depth 1.
+
+    obs (T, N, 2), vis (T, N). The tracks seen in the first frame with at
+    least ``min_points`` of them sit at depth 1 on their rays (its pose is
+    identity, like every frame before it); at each later frame with
+    ``min_points`` lifted tracks the pose follows from them (a few
+    Gauss–Newton steps from the previous pose; other frames hold it), then
+    the tracks seen for the first time are lifted onto their rays at the
+    median depth of the others.
+    """
+    num_frames, n = vis.shape
+    obs = np.ascontiguousarray(obs, dtype=np.float64)
+    rot, trans = np.tile(np.eye(3), (num_frames, 1, 1)), np.zeros((num_frames, 3))
+    depths = np.ones(num_frames)
+    known = np.zeros(num_frames, bool)
+    points = np.full((n, 3), np.nan)
+    for t in range(num_frames):
+        if t > 0:
+            rot[t], trans[t], depths[t] = rot[t - 1], trans[t - 1], depths[t - 1]
+        seen = vis[t] & ~np.isnan(points[:, 0])
+        if seen.sum() >= min_points:
+            refine_pose(rot[t], trans[t], points[seen], obs[t, seen], 3)
+            depths[t] = np.median(points[seen] @ rot[t, 2] + trans[t, 2])
+            known[t] = True
+        new = vis[t] & np.isnan(points[:, 0])
+        if not known.any() and new.sum() < min_points:
+            continue
+        known[t] = True
+        ray = np.concatenate([obs[t, new], np.ones((new.sum(), 1))], axis=1) * depths[t]
+        points[new] = (ray - trans[t]) @ rot[t]
+    return _Motion(rot, trans, depths, known)
 
 
 def _bundle_adjust(motion: _Motion, points: np.ndarray, prior: np.ndarray, obs: np.ndarray, vis: np.ndarray,
