@@ -20,7 +20,7 @@ def test_ctrl_c_while_rendering_leaves_nothing_partial(tmp_path, prior_file, tar
     out.write_bytes(b"an earlier result")
     before = sorted(p.name for p in tmp_path.iterdir())
     cmd = [sys.executable, "-m", "marionette.cli", "transfer", str(prior_file), str(target_png), "-o", str(out),
-           "--frames", "400", "--size", "256x256", "--ply-dir", str(tmp_path / "plys"),
+           "--frames", "150", "--size", "256x256", "--ply-dir", str(tmp_path / "plys"),
            "--preview", str(tmp_path / "p.gif")]
     # A session of its own, so the signal reaches the whole group (ffmpeg too), as Ctrl-C in a terminal does.
     # SIGINT restored to its default: a shell running the tests in the background ignores it, which children
