@@ -56,6 +56,15 @@ def test_fit_reproduces_held_out_frames(scene, fitted):
     assert len(rec.parts) <= 2 * area
 
 
+def test_a_coarse_start_reaches_the_same_held_out_quality(scene, fitted):
+    # Half the steps at half resolution, then the rest at full: the held-out frames come out as well as
+    # with every step at full resolution (measured 27.6 dB against 27.7).
+    prior, rec = fitted
+    coarse = reconstruct_object(scene.frames, scene.masks, prior, frames_used=EVEN,
+                                options=ReconstructOptions(iterations=400, coarse_fraction=0.5))
+    assert _held_out(coarse, scene, prior) > max(HELD_OUT_PSNR, _held_out(rec, scene, prior) - 1.0)
+
+
 def test_masked_psnr_known_values():
     frame = np.full((4, 4, 3), 100, np.uint8)
     mask = np.zeros((4, 4), bool)
@@ -92,6 +101,8 @@ def test_library_rejects_bad_inputs(scene):
         reconstruct_object(scene.frames, scene.masks, prior, options=ReconstructOptions(iterations=0))
     with pytest.raises(InputError, match="gaussians_per_pixel"):
         reconstruct_object(scene.frames, scene.masks, prior, options=ReconstructOptions(gaussians_per_pixel=0))
+    with pytest.raises(InputError, match="coarse_fraction"):
+        reconstruct_object(scene.frames, scene.masks, prior, options=ReconstructOptions(coarse_fraction=1.0))
     with pytest.raises(InputError, match="not visible"):
         reconstruct_object(scene.frames, np.zeros_like(scene.masks), prior)
     with pytest.raises(InputError, match="masks"):

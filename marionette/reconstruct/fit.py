@@ -72,6 +72,9 @@ class ReconstructOptions:
     ----------
     iterations : int
         Adam steps, one fitting frame each (frames are visited in a shuffled cycle).
+    coarse_fraction : float
+        Share of the iterations fitted to the frames at half the working resolution first (a quarter
+        of the pixels per step), before the rest at full resolution.
     max_side : int
         Long side of the frames the fit works on, before cropping (intrinsics follow). The
         default is the size frames are read at, so a 480p clip is fitted at its own resolution:
@@ -122,6 +125,7 @@ class ReconstructOptions:
     """
 
     iterations: int = 600
+    coarse_fraction: float = 0.0
     max_side: int = 960
     init_frames: int = 4
     init_cells: int = 2500
@@ -154,6 +158,8 @@ class ReconstructOptions:
             raise InputError(f"max_side must be within 16..8192, got {self.max_side}")
         if self.init_frames < 1 or self.init_cells < 16 or self.max_gaussians < 16:
             raise InputError("init_frames must be >= 1, init_cells and max_gaussians >= 16")
+        if not 0 <= self.coarse_fraction < 1:
+            raise InputError(f"coarse_fraction must be within [0, 1), got {self.coarse_fraction}")
         if not 0 <= self.ssim_weight <= 1:
             raise InputError(f"ssim_weight must be within 0..1, got {self.ssim_weight}")
         if not self.gaussians_per_pixel > 0:
@@ -419,6 +425,9 @@ def reconstruct_object(frames, masks, prior: SpatPrior, *, frames_used: Sequence
     scale = min(1.0, options.max_side / max(w, h))
     views = [make_view(t, np.asarray(frames[t]), np.asarray(masks[t], bool), prior.intrinsics, scale)
              for t in visible]
+    coarse_steps = int(round(options.coarse_fraction * options.iterations))
+    coarse = [make_view(t, np.asarray(frames[t]), np.asarray(masks[t], bool), prior.intrinsics, scale / 2)
+              for t in visible] if coarse_steps else views
     budget = gaussian_budget(views, options)
     picks = np.unique(np.rint(np.linspace(0, len(visible) - 1, min(options.init_frames, len(visible)))).astype(int))
     gaussians, parts = initial_gaussians(frames, masks, prior, [visible[i] for i in picks], visible,
@@ -452,7 +461,7 @@ def reconstruct_object(frames, masks, prior: SpatPrior, *, frames_used: Sequence
     for it in range(total):
         if not order:
             order = list(rng.permutation(len(views)))
-        view = views[order.pop()]
+        view = (coarse if it < coarse_steps else views)[order.pop()]
         loss, grads, screen = _loss_and_grads(params, parts, view, poses[view.frame], q_pose[view.frame],
                                               options.mask_weight, light, options.ssim_weight)
         block.append(loss)
