@@ -19,6 +19,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from .spd6 import cholesky6, cholesky6_solve
+
 __all__ = ["normal_blocks", "reduced_system", "point_steps", "reprojection_cost", "refine_pose", "triangulate_points"]
 
 _MIN_DEPTH = 1e-2
@@ -209,31 +211,6 @@ def _rodrigues(v, out):
 
 
 @numba.njit(cache=True)
-def _solve_spd6(a, b):
-    """Solve ``a x = b`` for a symmetric positive definite (6, 6) ``a`` and (6,) ``b`` (Cholesky)."""
-    low = np.zeros((6, 6))
-    for i in range(6):
-        for j in range(i + 1):
-            acc = a[i, j]
-            for k in range(j):
-                acc -= low[i, k] * low[j, k]
-            low[i, j] = np.sqrt(acc) if i == j else acc / low[j, j]
-    y = np.empty(6)
-    for i in range(6):
-        acc = b[i]
-        for k in range(i):
-            acc -= low[i, k] * y[k]
-        y[i] = acc / low[i, i]
-    x = np.empty(6)
-    for i in range(5, -1, -1):
-        acc = y[i]
-        for k in range(i + 1, 6):
-            acc -= low[k, i] * x[k]
-        x[i] = acc / low[i, i]
-    return x
-
-
-@numba.njit(cache=True)
 def refine_pose(rot, trans, points, obs, iterations):
     """Gauss–Newton on one frame's pose (rot (3, 3), trans (3,), updated in place) from the points
     (N, 3) observed at ``obs`` (N, 2, normalised); a ridge of 1e-6 of the trace keeps the step defined."""
@@ -251,7 +228,7 @@ def refine_pose(rot, trans, points, obs, iterations):
         ridge = 1e-6 * (hess[0, 0] + hess[1, 1] + hess[2, 2] + hess[3, 3] + hess[4, 4] + hess[5, 5]) + 1e-12
         for i in range(6):
             hess[i, i] += ridge
-        step = _solve_spd6(hess, grad)
+        step = cholesky6_solve(cholesky6(hess), grad)
         _rodrigues(step[:3], turn)
         _turn_pose(turn, step[3:], rot, trans)
 

@@ -45,6 +45,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..io.video import PackedMasks, VideoFrames, check_frames
+from .spd6 import cholesky6, cholesky6_solve
 
 __all__ = ["Tracks", "track"]
 
@@ -414,37 +415,6 @@ def _align_affine_numpy(ref: np.ndarray, ref_mask: np.ndarray, cur: np.ndarray, 
 
 
 @numba.njit(cache=True)
-def _cholesky6(a):
-    """Lower Cholesky factor of a symmetric positive definite (6, 6) matrix."""
-    low = np.zeros((6, 6))
-    for i in range(6):
-        for j in range(i + 1):
-            acc = a[i, j]
-            for k in range(j):
-                acc -= low[i, k] * low[j, k]
-            low[i, j] = np.sqrt(acc) if i == j else acc / low[j, j]
-    return low
-
-
-@numba.njit(cache=True)
-def _cholesky6_solve(low, b):
-    """Solve ``L Lᵀ x = b`` for (6,) ``b``."""
-    y = np.empty(6)
-    for i in range(6):
-        acc = b[i]
-        for k in range(i):
-            acc -= low[i, k] * y[k]
-        y[i] = acc / low[i, i]
-    x = np.empty(6)
-    for i in range(5, -1, -1):
-        acc = y[i]
-        for k in range(i + 1, 6):
-            acc -= low[k, i] * x[k]
-        x[i] = acc / low[i, i]
-    return x
-
-
-@numba.njit(cache=True)
 def _align_affine_kernel(ref, gx_img, gy_img, ref_mask, cur, p_ref, p_init, a_init, radius, iterations,
                          out_p, out_a, out_res):
     """Numba twin of :func:`_align_affine_numpy`, one point at a time; writes ``out_p, out_a, out_res``."""
@@ -487,7 +457,7 @@ def _align_affine_kernel(ref, gx_img, gy_img, ref_mask, cur, p_ref, p_init, a_in
         damp = 1e-6 * np.trace(hess) + 1e-12
         for i in range(6):
             hess[i, i] += damp
-        chol = _cholesky6(hess)
+        chol = cholesky6(hess)
         qx, qy = p_init[n, 0], p_init[n, 1]
         a00, a01, a10, a11 = a_init[n, 0, 0], a_init[n, 0, 1], a_init[n, 1, 0], a_init[n, 1, 1]
         for _ in range(iterations):
@@ -503,7 +473,7 @@ def _align_affine_kernel(ref, gx_img, gy_img, ref_mask, cur, p_ref, p_init, a_in
                 for i in range(6):
                     b[i] += wts[k] * sd[k, i] * e
             out_res[n] = np.sqrt(sse / wsum)
-            step = _cholesky6_solve(chol, b)
+            step = cholesky6_solve(chol, b)
             # (I + D)⁻¹, then A ← A (I + D)⁻¹ and p ← p - A d.
             det = (1.0 + step[0]) * (1.0 + step[3]) - step[1] * step[2]
             i00, i01, i10, i11 = (1.0 + step[3]) / det, -step[1] / det, -step[2] / det, (1.0 + step[0]) / det
