@@ -6,7 +6,10 @@ perspective division with depths floored at 1e-2). Each residual depends on
 one pose and one point, so the Gauss–Newton matrix is made of blocks: ``U_t``
 (6 × 6) per pose, ``V_n`` (3 × 3) per point and ``W_tn = J_tᵀ P_tn`` (6 × 3)
 per observation. The points are eliminated (Schur complement), which leaves
-the reduced camera system ``S = U - Σ_n W_n V_n⁻¹ W_nᵀ`` (6T × 6T).
+the reduced camera system ``S = U - Σ_n W_n V_n⁻¹ W_nᵀ`` (6T × 6T). Also here,
+the two smaller fits around it: one frame's pose from known points
+(:func:`refine_pose`, the frame-by-frame start) and each track's point from
+known poses (:func:`triangulate_points`, which scores a motion on tracks).
 
 Written as loops over the observations, these take a few stacked 2 × 6 and
 2 × 3 products per observation instead of numpy's many small batched matrix
