@@ -49,7 +49,9 @@ def main() -> None:
     category, _, _, parts, (psnr_p, ssim_p, lpips_p) = table1.CASES[args.clip]
     defaults = ReconstructOptions()
     source, masks = table1.source_of(args.clip)
-    lines = ["# Reconstruction iterations and Table 1", "",
+    title = "# Reconstruction iterations and Table 1" + ("" if args.ssim_weights is None else ", the D-SSIM term") \
+        + ("" if args.coarse_fractions is None else ", a half-resolution start")
+    lines = [title, "",
              f"`python benchmarks/bench_iterations.py --clip {args.clip} --iterations {args.iterations}"
              + ("" if args.ssim_weights is None else f" --ssim-weights {args.ssim_weights}")
              + ("" if args.coarse_fractions is None else f" --coarse-fractions {args.coarse_fractions}")
