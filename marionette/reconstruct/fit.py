@@ -423,11 +423,14 @@ def reconstruct_object(frames, masks, prior: SpatPrior, *, frames_used: Sequence
     rng = np.random.default_rng(options.seed)
     w, h = (int(v) for v in prior.image_size)
     scale = min(1.0, options.max_side / max(w, h))
-    views = [make_view(t, np.asarray(frames[t]), np.asarray(masks[t], bool), prior.intrinsics, scale)
-             for t in visible]
     coarse_steps = int(round(options.coarse_fraction * options.iterations))
-    coarse = [make_view(t, np.asarray(frames[t]), np.asarray(masks[t], bool), prior.intrinsics, scale / 2)
-              for t in visible] if coarse_steps else views
+    views, coarse = [], []
+    for t in visible:  # each frame read once (a video decodes it again on every read)
+        image, mask = np.asarray(frames[t]), np.asarray(masks[t], bool)
+        views.append(make_view(t, image, mask, prior.intrinsics, scale))
+        if coarse_steps:
+            coarse.append(make_view(t, image, mask, prior.intrinsics, scale / 2))
+    coarse = coarse or views
     budget = gaussian_budget(views, options)
     picks = np.unique(np.rint(np.linspace(0, len(visible) - 1, min(options.init_frames, len(visible)))).astype(int))
     gaussians, parts = initial_gaussians(frames, masks, prior, [visible[i] for i in picks], visible,
