@@ -7,7 +7,8 @@ Run from the root of a clean clone (the suite runs against the working tree)::
 For each OpenCV release, a fresh virtual environment gets the README's
 ``pip install -e ".[test]"`` with that release pinned over the default, and
 the README's ``pytest -q`` runs in it twice: with ``OPENBLAS_CORETYPE`` unset
-and set (to ``--coretype``). Then the determinism table (issue 14): the same
+and set (to ``--coretype``). numba's cache starts empty, as on a fresh clone:
+the first run compiles the kernels, the second reads them. Then the determinism table (issue 14): the same
 ``extract --parts auto`` of a one-part turn and of the synthetic hinge under 1
 and 2 threads and three OpenBLAS kernels (the machine's own, Haswell,
 Sandybridge), compared with the first. Figures go to
@@ -50,7 +51,8 @@ MOTIONS = [("outofplane", 16, (160, 120)), ("hinge", 20, (200, 150))]
 
 
 def run_suite(opencv: str, coretype: str) -> list[dict]:
-    """Install into a fresh venv with ``opencv`` pinned; run pytest with OPENBLAS_CORETYPE unset, then set."""
+    """Install into a fresh venv with ``opencv`` pinned; run pytest with OPENBLAS_CORETYPE unset (on an empty
+    numba cache), then set (on the cache the first run filled)."""
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         venv = Path(tmp) / "venv"
@@ -62,11 +64,13 @@ def run_suite(opencv: str, coretype: str) -> list[dict]:
         versions = subprocess.run([py, "-c", "import cv2, numpy, scipy, numba; print(cv2.__version__, "
                                    "numpy.__version__, scipy.__version__, numba.__version__)"],
                                   capture_output=True, text=True, check=True).stdout.split()
-        for core in ("", coretype):
+        for core, cache in (("", "cold"), (coretype, "warm")):
             env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_CORETYPE"}
+            env["NUMBA_CACHE_DIR"] = str(Path(tmp) / "numba-cache")
             if core:
                 env["OPENBLAS_CORETYPE"] = core
-            print(f"OpenCV {versions[0]}, OPENBLAS_CORETYPE={core or 'unset'}: pytest -q ...", flush=True)
+            print(f"OpenCV {versions[0]}, OPENBLAS_CORETYPE={core or 'unset'}, {cache} numba cache: pytest -q ...",
+                  flush=True)
             t0 = time.perf_counter()
             proc = subprocess.run([py, "-m", "pytest", "-q", "-p", "no:cacheprovider"], cwd=ROOT, env=env,
                                   capture_output=True, text=True)
@@ -74,7 +78,7 @@ def run_suite(opencv: str, coretype: str) -> list[dict]:
             found = SUMMARY.findall(proc.stdout)
             failed = re.findall(r"^FAILED (\S+)", proc.stdout, re.M)
             rows.append({"opencv": versions[0], "numpy": versions[1], "scipy": versions[2], "numba": versions[3],
-                         "coretype": core or "unset", "exit": proc.returncode,
+                         "coretype": core or "unset", "cache": cache, "exit": proc.returncode,
                          "result": found[-1][0] if found else proc.stdout[-300:].strip(),
                          "pytest_s": float(found[-1][1]) if found else None, "wall_s": wall, "failed": failed})
             print(f"  {rows[-1]['result']} ({wall:.0f} s)", flush=True)
@@ -124,14 +128,16 @@ def write_page(suite: list[dict], det: list[dict], coretype: str) -> str:
              f"`python benchmarks/bench_suite.py` on {platform.machine()}, {os.cpu_count()} cores "
              f"({cpu_name()}), Python {platform.python_version()}. Each OpenCV "
              "release in a fresh virtual environment (the README's `pip install -e \".[test]\"`, that release "
-             f"pinned over it); the README's `pytest -q` with `OPENBLAS_CORETYPE` unset and set to {coretype}.", ""]
+             f"pinned over it); the README's `pytest -q` with `OPENBLAS_CORETYPE` unset and set to {coretype}, the "
+             "first on an empty numba cache (as a fresh clone has: it compiles the kernels), the second on the "
+             "cache the first filled.", ""]
     if suite:
-        lines += ["| OpenCV | numpy / scipy / numba | OPENBLAS_CORETYPE | result | pytest s | failed |",
-                  "|---|---|---|---|---:|---|"]
+        lines += ["| OpenCV | numpy / scipy / numba | OPENBLAS_CORETYPE | numba cache | result | pytest s | failed |",
+                  "|---|---|---|---|---|---:|---|"]
         for r in suite:
             pytest_s = f"{r['pytest_s']:.0f}" if r["pytest_s"] is not None else "–"
             lines.append(f"| {r['opencv']} | {r['numpy']} / {r['scipy']} / {r['numba']} | {r['coretype']} | "
-                         f"{r['result']} | {pytest_s} | {', '.join(r['failed']) or '–'} |")
+                         f"{r['cache']} | {r['result']} | {pytest_s} | {', '.join(r['failed']) or '–'} |")
         lines.append("")
     lines += ["Determinism: `extract --parts auto` (masks given) of the synthetic one-part turn (`outofplane`, 16 "
               "frames, 160x120) and hinge (20 frames, 200x150), each configuration in a fresh process, against the "

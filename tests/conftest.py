@@ -1,6 +1,7 @@
 """Fixtures shared by the tests: one BLAS thread per xdist worker; a small prior file and a target image."""
 
-import os
+import fcntl
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -12,15 +13,58 @@ from marionette.io import write_prior
 from marionette.prior import SpatPrior
 
 
+def _compile_rendering() -> None:
+    """The rasterizer's forward and backward kernels: two fitting steps on a tiny scene."""
+    from marionette.reconstruct import ReconstructOptions, reconstruct_object
+    from marionette.synthetic import make_scene
+
+    scene = make_scene("outofplane", num_frames=2, size=(48, 36))
+    reconstruct_object(scene.frames, scene.masks, scene.ground_truth_prior(), options=ReconstructOptions(iterations=2))
+
+
+def _compile_extraction() -> None:
+    """The tracker's and the part fits' kernels, and the target lift's: a tiny hinge's prior, then a lifted photo."""
+    from marionette.source import ExtractOptions, extract_prior
+    from marionette.synthetic import make_scene
+    from marionette.target.lift import lift_image
+
+    scene = make_scene("hinge", num_frames=8, size=(96, 72), seed=1)
+    extract_prior(scene.frames, scene.masks, scene.camera.K, fps=24.0, options=ExtractOptions(parts="auto"))
+    lift_image(scene.frames[0], mask=scene.masks[0])
+
+
+def _share_the_compiling(worker: int, shared: Path) -> None:
+    """On a cold numba cache (a fresh clone) every worker would compile every kernel, ~80 s each on two cores.
+    Worker 2k compiles the rendering kernels and 2k+1 the extraction's, each under its share's lock; then each
+    waits for the other share's lock, so that the kernels it did not compile are read from the cache. A warm
+    cache makes this a second's work."""
+    shares = [_compile_rendering, _compile_extraction]
+    locks = [shared / f"compile-{i}.lock" for i in range(len(shares))]
+    mine = worker % len(shares)
+    with open(locks[mine], "a") as held:
+        fcntl.flock(held, fcntl.LOCK_EX)
+        try:
+            shares[mine]()
+        except Exception:  # only a head start: a test that needs the same code shows what went wrong
+            pass
+    for i, lock in enumerate(locks):
+        if i != mine:
+            with open(lock, "a") as other:
+                fcntl.flock(other, fcntl.LOCK_SH)
+
+
 @pytest.fixture(scope="session", autouse=True)
-def one_thread_per_worker():
+def xdist_worker(request, tmp_path_factory):
     """pytest-xdist runs one worker per core, so a worker's BLAS threads could only wait on the other workers
     (OpenBLAS's waiting threads spin: on two cores that made the suite 15 % slower). Set once the test modules,
     and with them every BLAS library, are loaded; subprocesses keep the machine's own setting."""
-    if not os.environ.get("PYTEST_XDIST_WORKER"):
+    worker = getattr(request.config, "workerinput", None)
+    if worker is None:
         yield
         return
     with threadpoolctl.threadpool_limits(limits=1, user_api="blas"):
+        # The workers' temporary folders share this parent.
+        _share_the_compiling(int(worker["workerid"].removeprefix("gw")), tmp_path_factory.getbasetemp().parent)
         yield
 
 
