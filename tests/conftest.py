@@ -1,4 +1,5 @@
-"""Fixtures shared by the tests: one BLAS thread per xdist worker; a small prior file and a target image."""
+"""Fixtures shared by the tests: the xdist workers' set-up (one BLAS thread each, the numba compiling shared on a
+cold cache); a small prior file and a target image."""
 
 import fcntl
 from pathlib import Path
@@ -55,7 +56,9 @@ def _share_the_compiling(worker: int, shared: Path) -> None:
 
 @pytest.fixture(scope="session", autouse=True)
 def xdist_worker(request, tmp_path_factory):
-    """pytest-xdist runs one worker per core, so a worker's BLAS threads could only wait on the other workers
+    """One BLAS thread per xdist worker, then the compiling shared (:func:`_share_the_compiling`).
+
+    pytest-xdist runs one worker per core, so a worker's BLAS threads could only wait on the other workers
     (OpenBLAS's waiting threads spin: on two cores that made the suite 15 % slower). Set once the test modules,
     and with them every BLAS library, are loaded; subprocesses keep the machine's own setting."""
     worker = getattr(request.config, "workerinput", None)
