@@ -49,6 +49,27 @@ def one_run() -> dict[str, float]:
     return {"first": first, "again": again, "help": start_up}
 
 
+#: (command, numba cache, key of one_run's result, decimals) of each row.
+ROWS = [("`marionette demo`", "empty (first run)", "first", 1), ("`marionette demo`", "filled", "again", 1),
+        ("`marionette --help`", "filled", "help", 2)]
+
+
+def write_page(runs: list[dict[str, float]]) -> str:
+    """The page's markdown: the medians of the runs, and each run."""
+    lines = [
+        "# The first run after installing", "",
+        f"`python benchmarks/bench_first_run.py --runs {len(runs)}` on {platform.machine()}, {os.cpu_count()} cores "
+        f"({cpu_name()}), Python {platform.python_version()}. `marionette demo` in a fresh process on an empty "
+        "numba cache (as a fresh install has: it compiles the rasterizer's, the tracker's and the part fits' "
+        "kernels), then again on the cache it filled; then `marionette --help` (start-up and imports). Medians "
+        f"of {len(runs)} runs, each on its own empty cache.", "",
+        "| command | numba cache | seconds (median) | runs |", "|---|---|---:|---|"]
+    for command, cache, key, digits in ROWS:
+        lines.append(f"| {command} | {cache} | {statistics.median(r[key] for r in runs):.{digits}f} | "
+                     + ", ".join(f"{r[key]:.{digits}f}" for r in runs) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=3, help="runs (each on its own empty cache)")
@@ -57,21 +78,7 @@ def main() -> None:
     for i in range(args.runs):
         runs.append(one_run())
         print(f"run {i + 1}: " + ", ".join(f"{k} {v:.1f} s" for k, v in runs[-1].items()), flush=True)
-    median = {key: statistics.median(r[key] for r in runs) for key in runs[0]}
-    page = "\n".join([
-        "# The first run after installing", "",
-        f"`python benchmarks/bench_first_run.py --runs {args.runs}` on {platform.machine()}, {os.cpu_count()} cores "
-        f"({cpu_name()}), Python {platform.python_version()}. `marionette demo` in a fresh process on an empty "
-        "numba cache (as a fresh install has: it compiles the rasterizer's, the tracker's and the part fits' "
-        "kernels), then again on the cache it filled; then `marionette --help` (start-up and imports). Medians "
-        f"of {args.runs} runs, each on its own empty cache.", "",
-        "| command | numba cache | seconds (median) | runs |", "|---|---|---:|---|",
-        f"| `marionette demo` | empty (first run) | {median['first']:.1f} | "
-        + ", ".join(f"{r['first']:.1f}" for r in runs) + " |",
-        f"| `marionette demo` | filled | {median['again']:.1f} | "
-        + ", ".join(f"{r['again']:.1f}" for r in runs) + " |",
-        f"| `marionette --help` | filled | {median['help']:.2f} | "
-        + ", ".join(f"{r['help']:.2f}" for r in runs) + " |", ""])
+    page = write_page(runs)
     PAGE.write_text(page)
     print(page)
 
