@@ -265,6 +265,9 @@ Plot = Annotated[Optional[Path], typer.Option(help="Also draw each part's rotati
 RecoverFrames = Annotated[bool, typer.Option(
     help="Find the pose of a frame the tracks lose (blur, a fast turn) by aligning a model of the object lifted "
          "from the last well-tracked frame, instead of interpolating it (one-part extraction).")]
+Joints = Annotated[bool, typer.Option(
+    help="Fit a part that turns about a fixed axis of the largest part (a lid, a door) as a hinge on it, when that "
+         "explains its tracks as well as a free motion (multi-part extraction).")]
 SourcePoint = Annotated[Optional[list[str]], typer.Option(
     help="A point X,Y on the object in the first source frame used, in its original pixels (repeatable): the "
          "masks follow that object instead of the automatic choice.")]
@@ -297,7 +300,7 @@ def _check_max_side(max_side: int) -> None:
 
 def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, stride: int, max_side: int,
              max_pixels: int, smooth: float, plot, prompt: Prompt | None, save_masks: Path | None, session: _Session,
-             recover_frames: bool = True):
+             recover_frames: bool = True, joints: bool = True):
     """Shared by ``extract`` and ``run``: check the options, extract, draw the plot."""
     parts_value = _parsed("--parts", parse_parts, parts)
     _check_max_side(max_side)
@@ -306,7 +309,7 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
     if not (np.isfinite(smooth) and 0 <= smooth <= 100):
         raise InputError(f"--smooth must be within 0..100, got {smooth}")
     _output_file(plot, ".png", "--plot")
-    options = ExtractOptions(parts=parts_value, smoothing=smooth, recover_frames=recover_frames)
+    options = ExtractOptions(parts=parts_value, smoothing=smooth, recover_frames=recover_frames, joints=joints)
     prior = pipeline.extract(source, masks=masks, depth=depth, focal=focal, max_side=max_side,
                              max_pixels=max_pixels, start=start, end=end, stride=stride, options=options,
                              prompt=prompt, reporter=session.reporter,
@@ -321,6 +324,10 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
         seconds = prior.metadata.get("timings", {}).get("recover", 0.0)
         session.reporter.detail(f"  {len(recovered)} part-frames the tracks lost were recovered by alignment "
                                 f"({seconds:.2f} s): {', '.join(recovered)}")
+    for part, joint in (prior.metadata.get("joints") or {}).items():
+        how = (f"a hinge on part 0 ({joint['residual_px']:.2f} px against {joint['free_residual_px']:.2f} px free)"
+               if joint["model"] == "hinge" else f"free: {joint['reason']}")
+        session.reporter.detail(f"  part {part}: {how}")
     if plot is not None:
         plot_prior(prior, session.stage(plot), title=Path(source).name)
         session.output("plot", plot)
@@ -333,14 +340,15 @@ def extract(source: Annotated[Path, typer.Argument(help="Video file or folder of
             start: Start = 0, end: End = None, stride: Stride = 1, max_side: MaxSide = pipeline.DEFAULT_MAX_SIDE,
             max_pixels: MaxPixels = DEFAULT_MAX_PIXELS, smooth: Smooth = 1.0, plot: Plot = None,
             source_point: SourcePoint = None, source_box: SourceBox = None, source_exclude: SourceExclude = None,
-            save_masks: SaveMasks = None, recover_frames: RecoverFrames = True, quiet: Quiet = False,
+            save_masks: SaveMasks = None, recover_frames: RecoverFrames = True, joints: Joints = True,
+            quiet: Quiet = False,
             verbose: Verbose = False, json_summary: Json = False, config: Config = None) -> None:
     """Extract the SpaT prior (per-part rigid motion) from a source video."""
     _output_file(output, ".npz", "--output")
     prompt = _prompt("source", source_point, source_box, source_exclude)
     with _session("extract", quiet, verbose, json_summary) as session:
         prior = _extract(source, masks, depth, focal, parts, start, end, stride, max_side, max_pixels, smooth, plot,
-                         prompt, save_masks, session, recover_frames)
+                         prompt, save_masks, session, recover_frames, joints)
         write_prior(session.stage(output), prior)
         session.output("prior", output)
 
@@ -562,7 +570,8 @@ def run(source: Annotated[Path, typer.Argument(help="Video file or folder of fra
         start: Start = 0, end: End = None, stride: Stride = 1, max_side: MaxSide = pipeline.DEFAULT_MAX_SIDE,
         max_pixels: MaxPixels = DEFAULT_MAX_PIXELS, smooth: Smooth = 1.0, plot: Plot = None,
         source_point: SourcePoint = None, source_box: SourceBox = None, source_exclude: SourceExclude = None,
-        save_masks: SaveMasks = None, recover_frames: RecoverFrames = True, frames: Frames = None,
+        save_masks: SaveMasks = None, recover_frames: RecoverFrames = True, joints: Joints = True,
+        frames: Frames = None,
         speed: Speed = 1.0, loop: Loop = "hold",
         reverse: Reverse = False,
         rotation_scale: RotationScale = 1.0, translation_scale: TranslationScale = 1.0, fps: Fps = None,
@@ -585,7 +594,7 @@ def run(source: Annotated[Path, typer.Argument(help="Video file or folder of fra
     _output_file(report, ".json", "--report")
     with _session("run", quiet, verbose, json_summary) as session:
         prior = _extract(source, masks, depth, focal, parts, start, end, stride, max_side, max_pixels, smooth, plot,
-                         prompt, save_masks, session, recover_frames)
+                         prompt, save_masks, session, recover_frames, joints)
         trajectory, video = _transfer_and_render(prior, target, output, play, session)
         if side_by_side is not None:
             times = source_times(trajectory.num_frames, prior.num_frames - 1, speed=speed, loop=loop, reverse=reverse)

@@ -171,8 +171,16 @@ def test_hinge_is_split_into_its_parts(hinge):
     assert rotation_angle_deg(prior.poses[1 - lid, :, :3, :3]).max() < 1.0  # the body is static
 
 
-@pytest.mark.xfail(strict=True, reason="known: Lucas-Kanade drift on the thin lid; on exact tracks the lid is "
-                   "within 0.8-2.2° (bench_extract.py, issue 3 note)")
+def test_hinge_lid_is_fitted_as_a_hinge_on_the_body(hinge):
+    """The free fit's lid is 14° off (median; the bas-relief ambiguity); the hinge model brings it within 3°."""
+    scene, prior = hinge
+    assert prior.metadata["joints"]["1"]["model"] == "hinge"
+    lid = int(np.argmax(rotation_angle_deg(prior.poses[:, -1, :3, :3])))
+    assert np.median(rotation_errors(prior.poses[lid], scene.poses[1])[1:]) < 3.0
+
+
+@pytest.mark.xfail(strict=True, reason="known: Lucas-Kanade drift on the thin lid leaves the hinge 1.7° off "
+                   "(median; 0.06° on exact tracks, docs/benchmarks/lid_relief.md)")
 def test_hinge_lid_rotation(hinge):
     scene, prior = hinge
     lid = int(np.argmax(rotation_angle_deg(prior.poses[:, -1, :3, :3])))

@@ -42,6 +42,7 @@ from ..progress import ProgressCallback, Reporter
 from .camera_motion import estimate_camera_motion, to_world
 from .depth import DepthMaps, poses_from_depth
 from .foreground import auto_masks
+from .hinge import fit_hinge
 from .parts import OFF_OBJECT, OUTLIER, STATIC, segment_parts
 from .recover import FrameRecovery
 from .rigid import RigidOptions, ShapePrior, carved_centroid, fit_rigid
@@ -78,6 +79,10 @@ class ExtractOptions:
         aligning a model of the object lifted from the last well-tracked frame
         (:mod:`~marionette.source.recover`), rather than interpolating it.
         One-part fits only: a part's own pixels in a lost frame are not known.
+    joints : bool
+        Fit each part that turns about a fixed axis of the largest part (a
+        lid, a door) as a hinge (:mod:`~marionette.source.hinge`) when that
+        explains its tracks as well as its free 6-DoF poses do.
     relief : float
         Half-thickness of the inflated shape prior relative to the mask's
         inscribed radius (1: a disc mask becomes a sphere).
@@ -101,6 +106,7 @@ class ExtractOptions:
     smoothing: float = 1.0
     camera_motion: bool = True
     recover_frames: bool = True
+    joints: bool = True
     relief: float = 1.0
     motion_threshold: float = 0.5
     rigid: RigidOptions = field(default_factory=RigidOptions)
@@ -112,6 +118,7 @@ class _Part:
 
     group: int  # its label in the segmentation (STATIC for the static group)
     pixels: np.ndarray  # (H, W) bool, its frame-0 object pixels
+    shape: ShapePrior
     poses: np.ndarray  # (T, 4, 4), camera-frame poses until the camera motion is removed
     centre: np.ndarray  # (3,) at frame 0
     radius: float
@@ -156,6 +163,39 @@ def _propagate_labels(tracks: Tracks, labels: np.ndarray, unlabelled: int, radiu
                 values, counts = np.unique(votes, return_counts=True)
                 labels[m] = values[counts.argmax()]
     return labels
+
+
+#: A hinge is kept when its median reprojection error exceeds the free poses' by no more than this (pixels):
+#: within the tracks' noise, the simpler model.
+_HINGE_TOLERANCE_PX = 0.25
+
+
+def _fit_joints(parts: list[_Part], tracks: Tracks, track_labels: np.ndarray, masks: np.ndarray, k: np.ndarray,
+                progress: ProgressCallback) -> dict[str, dict]:
+    """Refit each part after the first (the largest, its body) as a hinge on it where that fits as well.
+
+    Updates the parts' poses and centres in place; returns, per part index, the model kept and why.
+    """
+    body, notes = parts[0], {}
+    for index, part in enumerate(parts[1:], start=1):
+        members = track_labels == part.group
+        fit = (None if part.group == STATIC else
+               fit_hinge(tracks.uv[:, members], tracks.visible[:, members], body.poses, part.poses, k))
+        if fit is None:
+            notes[str(index)] = {"model": "free", "reason": "it barely turns against part 0, or has too few tracks"}
+        elif fit.residual_px > fit.free_residual_px + _HINGE_TOLERANCE_PX:
+            notes[str(index)] = {"model": "free", "reason": f"a hinge on part 0 fits its tracks worse "
+                                 f"({fit.residual_px:.2f} px against {fit.free_residual_px:.2f} px)"}
+        else:
+            part.poses = fit.poses
+            trusted = np.array([t for t in range(len(part.poses)) if t not in part.failed])
+            part.centre = carved_centroid(part.shape, masks, part.poses, trusted)
+            notes[str(index)] = {"model": "hinge", "on_part": 0, "axis": np.round(fit.axis, 4).tolist(),
+                                 "point": np.round(fit.point, 4).tolist(),
+                                 "residual_px": round(fit.residual_px, 3),
+                                 "free_residual_px": round(fit.free_residual_px, 3), "dropped_tracks": fit.dropped}
+        progress(index, len(parts) - 1)
+    return notes
 
 
 def whole_object_poses(tracks: Tracks, shape: ShapePrior, options: RigidOptions = RigidOptions()) -> np.ndarray:
@@ -353,12 +393,15 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
                 rms.append(fit.reprojection_rms)
             trusted = np.array([t for t in range(num_frames) if t not in failed])
             centre = carved_centroid(shape, masks, poses, trusted, points=points)
-            parts.append(_Part(g, pixels, poses, centre, shape.radius, failed, recovered))
+            parts.append(_Part(g, pixels, shape, poses, centre, shape.radius, failed, recovered))
     if recover_seconds:  # its own line in the timings, out of the pose fit's
         stages.timings["poses"] -= recover_seconds
         stages.timings["recover"] = recover_seconds
 
     parts.sort(key=lambda p: -p.pixels.sum())
+    if options.joints and len(parts) > 1:
+        with stages("joints", "fitting joints", len(parts) - 1) as progress:
+            metadata["joints"] = _fit_joints(parts, tracks, track_labels, masks, k, progress)
     poses = np.stack([p.poses for p in parts])  # (K, T, 4, 4) in camera coordinates
     cameras = None  # (1, T, 4, 4) world_to_camera, when the camera's motion is removed
     if camera is not None and not camera.static:

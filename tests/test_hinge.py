@@ -1,0 +1,91 @@
+"""The hinge model of a part (marionette.source.hinge) on exact synthetic tracks."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from marionette.geometry import rotation_angle_deg
+from marionette.source.extract import _HINGE_TOLERANCE_PX
+from marionette.source.hinge import _Observations, fit_hinge, hinge_poses
+
+K = np.array([[300.0, 0, 160], [0, 300.0, 120], [0, 0, 1]])
+T = 24
+
+
+def lid_points(rng: np.random.Generator) -> np.ndarray:
+    """(M, 3) points of a flat lid, 1.6 x 1 units, 5 units in front of the camera, its hinge edge at x = -0.8."""
+    xy = rng.uniform([-0.8, -0.5], [0.8, 0.5], size=(150, 2))
+    return np.column_stack([xy[:, 0], xy[:, 1] * 0.6, 5.0 + xy[:, 1] * 0.8])
+
+
+def project(poses: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(T, M, 2) pixels of ``points`` (M, 3) moved by ``poses`` (T, 4, 4)."""
+    cam = np.einsum("tij,mj->tmi", poses[:, :3, :3], points) + poses[:, None, :3, 3]
+    uv = cam @ K.T
+    return uv[..., :2] / uv[..., 2:]
+
+
+@pytest.fixture(scope="module")
+def hinge():
+    rng = np.random.default_rng(0)
+    axis = np.array([0.0, 0.8, -0.6])
+    point = np.array([-0.8, 0.0, 5.0])
+    angles = np.radians(np.linspace(0, 70, T))
+    body = np.tile(np.eye(4), (T, 1, 1))
+    body[:, 0, 3] = np.linspace(0, 0.3, T)  # the body drifts sideways; the hinge moves with it
+    points = lid_points(rng)
+    uv = project(hinge_poses(body, axis, point, angles), points)
+    visible = np.ones(uv.shape[:2], bool)
+    visible[T // 2:, :40] = False  # some tracks end halfway, as they do when the lid turns away
+    return body, axis, point, angles, points, np.where(visible[..., None], uv, np.nan), visible
+
+
+def test_points_are_solved_from_exact_tracks(hinge):
+    body, axis, point, angles, points, uv, visible = hinge
+    obs = _Observations(uv, visible, np.ones(len(points), bool))
+    solved = obs.points(hinge_poses(body, axis, point, angles)[:, :3], K)
+    np.testing.assert_allclose(solved, points, atol=1e-8)
+
+
+def test_a_hinge_comes_back_from_free_poses_off_by_the_bas_relief(hinge):
+    """The free fit's typical error: too little turn about a tilted axis. The hinge model finds the truth."""
+    body, axis, point, angles, points, uv, visible = hinge
+    tilted = Rotation.from_rotvec(np.radians(12) * np.array([1.0, 0, 0])).apply(axis)
+    free = hinge_poses(body, tilted, point + [0.1, 0, 0.3], 0.6 * angles)
+    fit = fit_hinge(uv, visible, body, free, K)
+    assert fit is not None and fit.dropped == 0
+    true = hinge_poses(body, axis, point, angles)
+    assert rotation_angle_deg(fit.poses[:, :3, :3] @ np.swapaxes(true[:, :3, :3], -1, -2)).max() < 0.05
+    assert np.degrees(np.arccos(abs(fit.axis @ axis))) < 0.05
+    assert np.abs(fit.poses[:, :3, 3] - true[:, :3, 3]).max() < 1e-3
+    assert fit.residual_px < 0.01 < fit.free_residual_px
+
+
+def test_tracks_of_another_part_are_dropped(hinge):
+    body, axis, point, angles, points, uv, visible = hinge
+    stray = project(body, lid_points(np.random.default_rng(1))[:10])  # body points labelled as the lid's
+    uv, visible = np.concatenate([uv, stray], axis=1), np.concatenate([visible, np.ones((T, 10), bool)], axis=1)
+    fit = fit_hinge(uv, visible, body, hinge_poses(body, axis, point, 0.8 * angles), K)
+    assert fit.dropped == 10
+    true = hinge_poses(body, axis, point, angles)
+    assert rotation_angle_deg(fit.poses[:, :3, :3] @ np.swapaxes(true[:, :3, :3], -1, -2)).max() < 0.05
+
+
+def test_a_part_moving_freely_is_not_made_a_hinge(hinge):
+    """A part that turns about changing axes and slides: the hinge explains its tracks much worse."""
+    body, _, _, _, points, _, _ = hinge
+    rotvecs = np.column_stack([np.linspace(0, 0.6, T), np.sin(np.linspace(0, 3, T)) * 0.4, np.zeros(T)])
+    free = np.tile(np.eye(4), (T, 1, 1))
+    free[:, :3, :3] = Rotation.from_rotvec(rotvecs).as_matrix()
+    free[:, :3, 3] = np.column_stack([np.linspace(0, 1.0, T), np.linspace(0, -0.5, T), np.zeros(T)])
+    free[:, :3, 3] += np.array([0, 0, 5.0]) - free[:, :3, :3] @ [0, 0, 5.0]  # turning about the lid, not the camera
+    uv = project(free, points)
+    fit = fit_hinge(uv, np.ones(uv.shape[:2], bool), body, free, K)
+    assert fit is None or fit.residual_px > fit.free_residual_px + _HINGE_TOLERANCE_PX
+
+
+def test_a_part_that_barely_turns_has_no_axis(hinge):
+    body, axis, point, angles, points, uv, visible = hinge
+    assert fit_hinge(uv, visible, body, hinge_poses(body, axis, point, angles * 0.05), K) is None
