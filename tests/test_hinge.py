@@ -45,7 +45,7 @@ def hinge():
 def test_points_are_solved_from_exact_tracks(hinge):
     body, axis, point, angles, points, uv, visible = hinge
     obs = _Observations(uv, visible, np.ones(len(points), bool))
-    solved = obs.points(hinge_poses(body, axis, point, angles)[:, :3], K)
+    solved = obs.points(hinge_poses(body, axis, point, angles), K)
     np.testing.assert_allclose(solved, points, atol=1e-8)
 
 
@@ -61,6 +61,19 @@ def test_a_hinge_comes_back_from_free_poses_off_by_the_bas_relief(hinge):
     assert np.degrees(np.arccos(abs(fit.axis @ axis))) < 0.05
     assert np.abs(fit.poses[:, :3, 3] - true[:, :3, 3]).max() < 1e-3
     assert fit.residual_px < 0.01 < fit.free_residual_px
+
+
+def test_on_a_still_body_the_part_keeps_the_depth_of_its_free_fit(hinge):
+    """With the body still, the part's scale is free (nothing in the images fixes it): the fit keeps about the
+    free fit's rather than wander off with the axis."""
+    body, axis, point, angles, points, uv, visible = hinge
+    still = np.tile(np.eye(4), (T, 1, 1))
+    uv = np.where(visible[..., None], project(hinge_poses(still, axis, point, angles), points), np.nan)
+    fit = fit_hinge(uv, visible, still, hinge_poses(still, axis, point, 0.7 * angles), K)
+    true = hinge_poses(still, axis, point, angles)
+    assert rotation_angle_deg(fit.poses[:, :3, :3] @ np.swapaxes(true[:, :3, :3], -1, -2)).max() < 0.05
+    scale = np.sum(fit.poses[:, :3, 3] * true[:, :3, 3]) / np.sum(true[:, :3, 3] ** 2)
+    assert 0.8 < scale < 1.25 and np.abs(fit.poses[:, :3, 3] - scale * true[:, :3, 3]).max() < 1e-3
 
 
 def test_tracks_of_another_part_are_dropped(hinge):

@@ -34,6 +34,9 @@ __all__ = ["HingeFit", "fit_hinge", "hinge_poses"]
 
 #: Cauchy loss scale of the reprojection residuals, pixels.
 _LOSS_SCALE = 0.5
+#: Weight of the depth gauge: 1 % off the free fit's mean depth costs what a 0.01 px residual does (it only
+#: has to hold the scale where the images leave it free).
+_GAUGE_WEIGHT = 1.0
 #: A track whose median residual under the first fit exceeds this (pixels) is dropped before the second.
 _DROP_PX = 1.0
 
@@ -100,11 +103,12 @@ class _Observations:
         return np.column_stack([k[0, 0] * cam[:, 0] / cam[:, 2] + k[0, 2],
                                 k[1, 1] * cam[:, 1] / cam[:, 2] + k[1, 2]]) - self.uv
 
-    def residuals(self, poses: np.ndarray, k: np.ndarray) -> np.ndarray:
-        """(N, 2) reprojection errors under ``poses`` (T, 4, 4), each track's point re-solved."""
+    def residuals(self, poses: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(N, 2) reprojection errors under ``poses`` (T, 4, 4), each track's point re-solved, and those
+        points (M, 3)."""
         points = self.points(poses, k)
         cam = np.einsum("nij,nj->ni", poses[self.t, :3, :3], points[self.m]) + poses[self.t, :3, 3]
-        return self.residuals_of(cam, k)
+        return self.residuals_of(cam, k), points
 
     def per_track_median(self, residuals: np.ndarray) -> np.ndarray:
         """(M,) median error (pixels) of each track, from ``residuals`` (N, 2)."""
@@ -226,8 +230,13 @@ def fit_hinge(uv: np.ndarray, visible: np.ndarray, body_poses: np.ndarray, free_
         axis = axis0 + p[0] * e1 + p[1] * e2
         return axis / np.linalg.norm(axis), point0 + p[2] * e1 + p[3] * e2, np.r_[0.0, p[4:]]
 
+    # When the body does not move, scaling the part's points and axis about the camera changes no image:
+    # the part keeps the mean depth its free fit gave it.
+    depth = float(np.mean(obs.residuals(free_poses, k)[1][:, 2]))
+
     def residuals(p: np.ndarray, data: _Observations) -> np.ndarray:
-        return data.residuals(hinge_poses(body_poses, *unpack(p)), k).ravel()
+        errors, points = data.residuals(hinge_poses(body_poses, *unpack(p)), k)
+        return np.r_[errors.ravel(), _GAUGE_WEIGHT * (np.mean(points[:, 2]) / depth - 1.0)]
 
     def robust_fit(start: np.ndarray, data: _Observations) -> np.ndarray:
         with threadpool_limits(limits=1, user_api="blas"):  # the same bits whatever the BLAS thread count
@@ -235,13 +244,12 @@ def fit_hinge(uv: np.ndarray, visible: np.ndarray, body_poses: np.ndarray, free_
                                  max_nfev=max_evaluations).x
 
     first = robust_fit(np.r_[0.0, 0.0, 0.0, 0.0, angles0[1:]], obs)
-    follows = obs.per_track_median(residuals(first, obs).reshape(-1, 2)) < _DROP_PX
+    follows = obs.per_track_median(residuals(first, obs)[:-1].reshape(-1, 2)) < _DROP_PX
     if follows.sum() < 6:
         return None
     following = keep.copy()
     following[np.flatnonzero(keep)[~follows]] = False
     axis, point, angles = unpack(robust_fit(first, _Observations(uv, visible, following)))
     poses = hinge_poses(body_poses, axis, point, angles)
-    hinged = float(np.median(np.linalg.norm(obs.residuals(poses, k), axis=1)))
-    free = float(np.median(np.linalg.norm(obs.residuals(free_poses, k), axis=1)))
+    hinged, free = (float(np.median(np.linalg.norm(obs.residuals(p, k)[0], axis=1))) for p in (poses, free_poses))
     return HingeFit(poses, axis, point, angles, hinged, free, int((~follows).sum()))
