@@ -93,7 +93,9 @@ def main() -> None:
               "the poses' error (its relief trades against rotation; carving under a wrong lid pose removes the "
               "lid), so aligning to it gives the tracker's poses back. Alternating reconstruction and alignment, "
               "windows of 8 frames grown in time and Adam on the poses inside the reconstruction were tried and "
-              "did not break that circle (closing note of 2026-12-01).", ""]
+              "did not break that circle (closing note of 2026-12-01). The hinge's tracker row is its lid fitted "
+              "as a hinge on the body (`marionette/source/hinge.py`, on by default since 2026-12-04; 14.0° median "
+              "free): the free per-part alignment does not improve on it (lid_relief.md).", ""]
     OUT.write_text("\n".join(lines))
     print(f"wrote {OUT}")
 

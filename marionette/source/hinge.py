@@ -34,9 +34,14 @@ __all__ = ["HingeFit", "fit_hinge", "hinge_poses"]
 
 #: Cauchy loss scale of the reprojection residuals, pixels.
 _LOSS_SCALE = 0.5
-#: Weight of the depth gauge: 1 % off the free fit's mean depth costs what a 0.01 px residual does (it only
-#: has to hold the scale where the images leave it free).
+#: Weight of the scale gauge: the axis 1 % nearer or farther than the free fit put it costs what a 0.01 px
+#: residual does (it only has to hold the scale where the images leave it free).
 _GAUGE_WEIGHT = 1.0
+#: The fit uses at most this many tracks (the longest), plus the longest few seen in each frame.
+_MAX_TRACKS = 120
+#: At most this many evenly spaced frames in the joint fit of the axis and the angles.
+_KEY_FRAMES = 24
+_TRACKS_PER_FRAME = 4
 #: A track whose median residual under the first fit exceeds this (pixels) is dropped before the second.
 _DROP_PX = 1.0
 
@@ -91,29 +96,14 @@ class _Observations:
         self.uv = uv[:, keep][t, m].astype(np.float64)
         self._starts = np.searchsorted(m, np.arange(self.num_points))
 
-    def points(self, poses: np.ndarray, k: np.ndarray, steps: int = 3) -> np.ndarray:
-        """(M, 3) frame-0 points that best explain the tracks under ``poses`` (T, 4, 4).
-
-        Linear triangulation, then ``steps`` Gauss-Newton steps on the reprojection error.
-        """
-        return _solve_points(self.t, self.uv, self._starts, np.ascontiguousarray(poses[:, :3]), k, steps)
-
-    def residuals_of(self, cam: np.ndarray, k: np.ndarray) -> np.ndarray:
-        """(N, 2) projections of camera-frame points ``cam`` (N, 3) minus the observations."""
-        return np.column_stack([k[0, 0] * cam[:, 0] / cam[:, 2] + k[0, 2],
-                                k[1, 1] * cam[:, 1] / cam[:, 2] + k[1, 2]]) - self.uv
-
     def residuals(self, poses: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(N, 2) reprojection errors under ``poses`` (T, 4, 4), each track's point re-solved, and those
-        points (M, 3)."""
-        points = self.points(poses, k)
-        cam = np.einsum("nij,nj->ni", poses[self.t, :3, :3], points[self.m]) + poses[self.t, :3, 3]
-        return self.residuals_of(cam, k), points
+        """(N, 2) reprojection errors under ``poses`` (T, 4, 4), each track's frame-0 point re-solved (linear
+        triangulation, then three Gauss-Newton steps on the reprojection error), and those points (M, 3)."""
+        return _solve_points(self.t, self.uv, self._starts, np.ascontiguousarray(poses[:, :3]), k, 3)
 
-    def per_track_median(self, residuals: np.ndarray) -> np.ndarray:
-        """(M,) median error (pixels) of each track, from ``residuals`` (N, 2)."""
-        err = np.split(np.linalg.norm(residuals, axis=1), self._starts[1:])
-        return np.array([np.median(e) for e in err])
+    def per_track_median(self, errors: np.ndarray) -> np.ndarray:
+        """(M,) median of each track's per-observation ``errors`` (N,)."""
+        return np.array([np.median(e) for e in np.split(errors, self._starts[1:])])
 
 
 @njit(cache=True)
@@ -142,11 +132,12 @@ def _solve3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 @njit(cache=True)
 def _solve_points(t: np.ndarray, uv: np.ndarray, starts: np.ndarray, poses: np.ndarray, k: np.ndarray,
-                  steps: int) -> np.ndarray:
+                  steps: int) -> tuple[np.ndarray, np.ndarray]:
     """(M, 3) points from observations grouped by track (track m: ``starts[m]`` up to the next start) of frames
-    ``t`` (N,) at pixels ``uv`` (N, 2) under ``poses`` (T, 3, 4): linear triangulation, then Gauss-Newton."""
+    ``t`` (N,) at pixels ``uv`` (N, 2) under ``poses`` (T, 3, 4): linear triangulation, then ``steps``
+    Gauss-Newton steps; and the (N, 2) reprojection errors they leave."""
     num_points, n = len(starts), len(t)
-    points = np.zeros((num_points, 3))
+    points, errors = np.zeros((num_points, 3)), np.zeros((n, 2))
     proj, du, dv = np.empty(4), np.empty(3), np.empty(3)
     for m in range(num_points):
         stop = starts[m + 1] if m + 1 < num_points else n
@@ -181,7 +172,14 @@ def _solve_points(t: np.ndarray, uv: np.ndarray, starts: np.ndarray, poses: np.n
             for a in range(3):
                 x[a] -= step[a]
         points[m] = x
-    return points
+        for i in range(starts[m], stop):
+            r = poses[t[i]]
+            cx = r[0, 0] * x[0] + r[0, 1] * x[1] + r[0, 2] * x[2] + r[0, 3]
+            cy = r[1, 0] * x[0] + r[1, 1] * x[1] + r[1, 2] * x[2] + r[1, 3]
+            cz = r[2, 0] * x[0] + r[2, 1] * x[1] + r[2, 2] * x[2] + r[2, 3]
+            errors[i, 0] = k[0, 0] * cx / cz + k[0, 2] - uv[i, 0]
+            errors[i, 1] = k[1, 1] * cy / cz + k[1, 2] - uv[i, 1]
+    return errors, points
 
 
 def _initial_hinge(relative: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -196,7 +194,7 @@ def _initial_hinge(relative: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nda
 
 
 def fit_hinge(uv: np.ndarray, visible: np.ndarray, body_poses: np.ndarray, free_poses: np.ndarray,
-              k: np.ndarray, *, min_track_frames: int = 3, max_evaluations: int = 100) -> HingeFit | None:
+              k: np.ndarray, *, min_track_frames: int = 3, max_evaluations: int = 50) -> HingeFit | None:
     """Fit a part's motion as a hinge on its body, starting from its free poses.
 
     Parameters
@@ -209,7 +207,7 @@ def fit_hinge(uv: np.ndarray, visible: np.ndarray, body_poses: np.ndarray, free_
     min_track_frames : int
         Tracks seen in fewer frames say nothing of the motion and are left out.
     max_evaluations : int
-        Cap on the least-squares evaluations per fit.
+        Cap on the least-squares evaluations per fit of the axis.
 
     Returns
     -------
@@ -220,36 +218,91 @@ def fit_hinge(uv: np.ndarray, visible: np.ndarray, body_poses: np.ndarray, free_
     keep = visible.sum(axis=0) >= min_track_frames
     if rotation_angle_deg(relative[:, :3, :3]).max() < 5.0 or keep.sum() < 6:
         return None
-    obs = _Observations(uv, visible, keep)
     axis0, point0, angles0 = _initial_hinge(relative)
+    # The axis and the angles of evenly spaced key frames first (the cost grows with the frames squared),
+    # then each other frame's angle alone, about that axis.
+    key = np.unique(np.linspace(0, len(body_poses) - 1, min(len(body_poses), _KEY_FRAMES)).round().astype(int))
+    fitted = _fit_key_frames(uv[key], visible[key], body_poses[key], free_poses[key], k, axis0, point0, angles0[key],
+                             max_evaluations)
+    if fitted is None:
+        return None
+    axis, point, key_angles, points, tracks, dropped = fitted
+    angles = np.interp(np.arange(len(body_poses)), key, key_angles)
+    for t in np.setdiff1d(np.arange(len(body_poses)), key):
+        angles[t] = _frame_angle(uv[t, tracks], visible[t, tracks], points, body_poses[t], axis, point, angles[t], k)
+    poses = hinge_poses(body_poses, axis, point, angles)
+    every = _Observations(uv, visible, keep)
+    hinged, free = (float(np.median(np.linalg.norm(every.residuals(p, k)[0], axis=1))) for p in (poses, free_poses))
+    return HingeFit(poses, axis, point, angles, hinged, free, dropped)
+
+
+def _fit_key_frames(uv, visible, body_poses, free_poses, k, axis0, point0, angles0, max_evaluations):
+    """Axis, point, angles (T',), the tracks' points (M', 3) and which tracks they are ((M,) bool), and how many
+    tracks were dropped, from the key frames' tracks ``uv`` (T', M, 2); None if too few tracks follow a hinge."""
     e1 = np.cross(axis0, np.eye(3)[np.argmin(np.abs(axis0))])
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(axis0, e1)
+    # When the body does not move, scaling the part and its axis about the camera changes no image: the
+    # axis keeps its free fit's distance from the camera.
+    distance = max(float(np.linalg.norm(point0)), 1e-9)
 
     def unpack(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         axis = axis0 + p[0] * e1 + p[1] * e2
         return axis / np.linalg.norm(axis), point0 + p[2] * e1 + p[3] * e2, np.r_[0.0, p[4:]]
 
-    # When the body does not move, scaling the part's points and axis about the camera changes no image:
-    # the part keeps the mean depth its free fit gave it.
-    depth = float(np.mean(obs.residuals(free_poses, k)[1][:, 2]))
-
     def residuals(p: np.ndarray, data: _Observations) -> np.ndarray:
-        errors, points = data.residuals(hinge_poses(body_poses, *unpack(p)), k)
-        return np.r_[errors.ravel(), _GAUGE_WEIGHT * (np.mean(points[:, 2]) / depth - 1.0)]
+        axis, point, angles = unpack(p)
+        errors = data.residuals(hinge_poses(body_poses, axis, point, angles), k)[0]
+        return np.r_[errors.ravel(), _GAUGE_WEIGHT * (np.linalg.norm(point) / distance - 1.0)]
 
     def robust_fit(start: np.ndarray, data: _Observations) -> np.ndarray:
         with threadpool_limits(limits=1, user_api="blas"):  # the same bits whatever the BLAS thread count
             return least_squares(residuals, start, args=(data,), loss="cauchy", f_scale=_LOSS_SCALE,
                                  max_nfev=max_evaluations).x
 
-    first = robust_fit(np.r_[0.0, 0.0, 0.0, 0.0, angles0[1:]], obs)
-    follows = obs.per_track_median(residuals(first, obs)[:-1].reshape(-1, 2)) < _DROP_PX
+    sample = _sample_tracks(visible, visible.sum(axis=0) >= 3)
+    if sample.sum() < 6:
+        return None
+    obs = _Observations(uv, visible, sample)
+    fit = robust_fit(np.r_[0.0, 0.0, 0.0, 0.0, angles0[1:]], obs)
+    errors = np.linalg.norm(residuals(fit, obs)[:-1].reshape(-1, 2), axis=1)
+    free_errors = np.linalg.norm(obs.residuals(free_poses, k)[0], axis=1)
+    follows = obs.per_track_median(errors) < _DROP_PX
     if follows.sum() < 6:
         return None
-    following = keep.copy()
-    following[np.flatnonzero(keep)[~follows]] = False
-    axis, point, angles = unpack(robust_fit(first, _Observations(uv, visible, following)))
-    poses = hinge_poses(body_poses, axis, point, angles)
-    hinged, free = (float(np.median(np.linalg.norm(obs.residuals(p, k)[0], axis=1))) for p in (poses, free_poses))
-    return HingeFit(poses, axis, point, angles, hinged, free, int((~follows).sum()))
+    tracks = sample.copy()
+    if np.median(errors) <= 2 * np.median(free_errors) + _DROP_PX:  # else plainly no hinge: not worth refining
+        tracks[np.flatnonzero(sample)[~follows]] = False
+        obs = _Observations(uv, visible, tracks)
+        fit = robust_fit(fit, obs)
+    axis, point, angles = unpack(fit)
+    points = obs.residuals(hinge_poses(body_poses, axis, point, angles), k)[1]
+    return axis, point, angles, points, tracks, int((~follows).sum())
+
+
+def _frame_angle(uv: np.ndarray, visible: np.ndarray, points: np.ndarray, body_pose: np.ndarray, axis: np.ndarray,
+                 point: np.ndarray, start: float, k: np.ndarray) -> float:
+    """The angle about the axis that best places ``points`` (M, 3) on one frame's tracks ``uv`` (M, 2) where
+    ``visible`` (M,); ``start`` when fewer than 3 are seen."""
+    if visible.sum() < 3:
+        return start
+    seen, observed = points[visible], uv[visible].astype(np.float64)
+
+    def residuals(angle: np.ndarray) -> np.ndarray:
+        pose = hinge_poses(body_pose[None], axis, point, angle)[0]
+        cam = seen @ pose[:3, :3].T + pose[:3, 3]
+        return (cam[:, :2] / cam[:, 2:] * np.diag(k)[:2] + k[:2, 2] - observed).ravel()
+
+    return float(least_squares(residuals, [start], loss="cauchy", f_scale=_LOSS_SCALE).x[0])
+
+
+def _sample_tracks(visible: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """(M,) bool: the longest of the tracks ``keep``, at most :data:`_MAX_TRACKS`, and the
+    :data:`_TRACKS_PER_FRAME` longest seen in each frame (so no frame is left without)."""
+    lengths = np.where(keep, visible.sum(axis=0), 0)
+    order = np.lexsort((np.arange(len(lengths)), -lengths))  # longest first, ties by index
+    chosen = np.zeros(len(lengths), bool)
+    chosen[order[:_MAX_TRACKS]] = True
+    for seen in visible[:, order]:
+        chosen[order[seen][:_TRACKS_PER_FRAME]] = True
+    return chosen & keep
