@@ -38,10 +38,10 @@ _LOSS_SCALE = 0.5
 #: residual does (it only has to hold the scale where the images leave it free).
 _GAUGE_WEIGHT = 1.0
 #: The fit uses at most this many tracks (the longest), plus the longest few seen in each frame.
-_MAX_TRACKS = 120
+_MAX_TRACKS = 400
 #: At most this many evenly spaced frames in the joint fit of the axis and the angles.
 _KEY_FRAMES = 24
-_TRACKS_PER_FRAME = 4
+_TRACKS_PER_FRAME = 16
 #: A track whose median residual under the first fit exceeds this (pixels) is dropped before the second.
 _DROP_PX = 1.0
 
