@@ -266,8 +266,8 @@ RecoverFrames = Annotated[bool, typer.Option(
     help="Find the pose of a frame the tracks lose (blur, a fast turn) by aligning a model of the object lifted "
          "from the last well-tracked frame, instead of interpolating it (one-part extraction).")]
 Joints = Annotated[bool, typer.Option(
-    help="Fit a part that turns about a fixed axis of the largest part (a lid, a door) as a hinge on it, when that "
-         "explains its tracks as well as a free motion (multi-part extraction).")]
+    help="Fit a part that turns about a fixed axis of the part that turns least (a lid on a box, a door on its "
+         "frame) as a hinge on it, when that explains its tracks as well as a free motion (multi-part extraction).")]
 SourcePoint = Annotated[Optional[list[str]], typer.Option(
     help="A point X,Y on the object in the first source frame used, in its original pixels (repeatable): the "
          "masks follow that object instead of the automatic choice.")]
@@ -325,7 +325,8 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
         session.reporter.detail(f"  {len(recovered)} part-frames the tracks lost were recovered by alignment "
                                 f"({seconds:.2f} s): {', '.join(recovered)}")
     for part, joint in (prior.metadata.get("joints") or {}).items():
-        how = (f"a hinge on part 0 ({joint['residual_px']:.2f} px against {joint['free_residual_px']:.2f} px free)"
+        how = (f"a hinge on part {joint['on_part']} ({joint['residual_px']:.2f} px against "
+               f"{joint['free_residual_px']:.2f} px free)"
                if joint["model"] == "hinge" else f"free: {joint['reason']}")
         session.reporter.detail(f"  part {part}: {how}")
     if plot is not None:

@@ -35,7 +35,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..errors import InputError
-from ..geometry import invert_transform
+from ..geometry import invert_transform, rotation_angle_deg
 from ..io.video import PackedMasks, VideoFrames
 from ..prior import CAMERA_EXTRA, SpatPrior
 from ..progress import ProgressCallback, Reporter
@@ -80,8 +80,8 @@ class ExtractOptions:
         (:mod:`~marionette.source.recover`), rather than interpolating it.
         One-part fits only: a part's own pixels in a lost frame are not known.
     joints : bool
-        Fit each part that turns about a fixed axis of the largest part (a
-        lid, a door) as a hinge (:mod:`~marionette.source.hinge`) when that
+        Fit each part that turns about a fixed axis of the part that turns
+        least (a lid on a box, a door on its frame) as a hinge (:mod:`~marionette.source.hinge`) when that
         explains its tracks as well as its free 6-DoF poses do.
     relief : float
         Half-thickness of the inflated shape prior relative to the mask's
@@ -172,29 +172,36 @@ _HINGE_TOLERANCE_PX = 0.25
 
 def _fit_joints(parts: list[_Part], tracks: Tracks, track_labels: np.ndarray, masks: np.ndarray, k: np.ndarray,
                 progress: ProgressCallback) -> dict[str, dict]:
-    """Refit each part after the first (the largest, its body) as a hinge on it where that fits as well.
+    """Refit each part as a hinge on the body where that fits as well as its free poses.
 
-    Updates the parts' poses and centres in place; returns, per part index, the model kept and why.
+    The body is the part that turns least (a box under its lid, a frame under its door: its pose is the
+    better determined); ties go to the larger. Updates the parts' poses and centres in place; returns, per
+    part index, the model kept and why.
     """
-    body, notes = parts[0], {}
-    for index, part in enumerate(parts[1:], start=1):
+    turns = [rotation_angle_deg(p.poses[:, :3, :3]).max() for p in parts]
+    on = min(range(len(parts)), key=lambda i: (round(turns[i], 6), -parts[i].pixels.sum()))
+    body, notes = parts[on], {}
+    others = [i for i in range(len(parts)) if i != on]
+    for done, index in enumerate(others, start=1):
+        part = parts[index]
         members = track_labels == part.group
         fit = (None if part.group == STATIC else
                fit_hinge(tracks.uv[:, members], tracks.visible[:, members], body.poses, part.poses, k))
         if fit is None:
-            notes[str(index)] = {"model": "free", "reason": "it barely turns against part 0, or has too few tracks"}
+            notes[str(index)] = {"model": "free", "reason": f"it barely turns against part {on}, or has too few "
+                                 "tracks"}
         elif fit.residual_px > fit.free_residual_px + _HINGE_TOLERANCE_PX:
-            notes[str(index)] = {"model": "free", "reason": f"a hinge on part 0 fits its tracks worse "
+            notes[str(index)] = {"model": "free", "reason": f"a hinge on part {on} fits its tracks worse "
                                  f"({fit.residual_px:.2f} px against {fit.free_residual_px:.2f} px)"}
         else:
             part.poses = fit.poses
             trusted = np.array([t for t in range(len(part.poses)) if t not in part.failed])
             part.centre = carved_centroid(part.shape, masks, part.poses, trusted)
-            notes[str(index)] = {"model": "hinge", "on_part": 0, "axis": np.round(fit.axis, 4).tolist(),
+            notes[str(index)] = {"model": "hinge", "on_part": on, "axis": np.round(fit.axis, 4).tolist(),
                                  "point": np.round(fit.point, 4).tolist(),
                                  "residual_px": round(fit.residual_px, 3),
                                  "free_residual_px": round(fit.free_residual_px, 3), "dropped_tracks": fit.dropped}
-        progress(index, len(parts) - 1)
+        progress(done, len(others))
     return notes
 
 

@@ -39,6 +39,10 @@ _LOSS_SCALE = 0.5
 _GAUGE_WEIGHT = 1.0
 #: The fit uses at most this many tracks (the longest), plus the longest few seen in each frame.
 _MAX_TRACKS = 400
+#: A point nearer than this (in the poses' units) to the camera plane counts as behind it, and its observations
+#: as this many pixels off.
+_MIN_DEPTH = 1e-6
+_BEHIND_PX = 1e3
 #: At most this many evenly spaced frames in the joint fit of the axis and the angles.
 _KEY_FRAMES = 24
 _TRACKS_PER_FRAME = 16
@@ -130,7 +134,7 @@ def _solve3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _solve_points(t: np.ndarray, uv: np.ndarray, starts: np.ndarray, poses: np.ndarray, k: np.ndarray,
                   steps: int) -> tuple[np.ndarray, np.ndarray]:
     """(M, 3) points from observations grouped by track (track m: ``starts[m]`` up to the next start) of frames
@@ -159,6 +163,8 @@ def _solve_points(t: np.ndarray, uv: np.ndarray, starts: np.ndarray, poses: np.n
                 cx = r[0, 0] * x[0] + r[0, 1] * x[1] + r[0, 2] * x[2] + r[0, 3]
                 cy = r[1, 0] * x[0] + r[1, 1] * x[1] + r[1, 2] * x[2] + r[1, 3]
                 cz = r[2, 0] * x[0] + r[2, 1] * x[1] + r[2, 2] * x[2] + r[2, 3]
+                if cz < _MIN_DEPTH:  # behind the camera: no say in the step
+                    continue
                 res_u = k[0, 0] * cx / cz + k[0, 2] - uv[i, 0]
                 res_v = k[1, 1] * cy / cz + k[1, 2] - uv[i, 1]
                 for a in range(3):  # d pixel / d point = d pixel / d camera point @ rotation
@@ -177,8 +183,11 @@ def _solve_points(t: np.ndarray, uv: np.ndarray, starts: np.ndarray, poses: np.n
             cx = r[0, 0] * x[0] + r[0, 1] * x[1] + r[0, 2] * x[2] + r[0, 3]
             cy = r[1, 0] * x[0] + r[1, 1] * x[1] + r[1, 2] * x[2] + r[1, 3]
             cz = r[2, 0] * x[0] + r[2, 1] * x[1] + r[2, 2] * x[2] + r[2, 3]
-            errors[i, 0] = k[0, 0] * cx / cz + k[0, 2] - uv[i, 0]
-            errors[i, 1] = k[1, 1] * cy / cz + k[1, 2] - uv[i, 1]
+            if cz < _MIN_DEPTH:
+                errors[i, 0] = errors[i, 1] = _BEHIND_PX
+            else:
+                errors[i, 0] = k[0, 0] * cx / cz + k[0, 2] - uv[i, 0]
+                errors[i, 1] = k[1, 1] * cy / cz + k[1, 2] - uv[i, 1]
     return errors, points
 
 
