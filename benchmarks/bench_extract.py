@@ -179,9 +179,12 @@ def hinge_parts(seeds: int, frames: int, size: tuple[int, int]) -> list[str]:
         lines.append(f"| {seed} | {prior.num_parts} | {lid:.2f} | {body:.2f} | {elapsed:.2f} |")
         print(f"hinge auto   seed {seed}: {prior.num_parts} parts, lid {lid:.2f} deg, body {body:.2f} deg", flush=True)
     return lines + [
-        "", "Reading: the lid is a thin slab seen obliquely; as it opens its top face turns edge-on and its underside"
-        " comes into view. Its rotation is underestimated from the first frames on, and the error jumps when the"
-        " top face turns away. Measured with tracks made on the lid alone (true per-frame lid masks, so no window"
+        "", "Reading: the lid is fitted as a hinge on the box (`ExtractOptions.joints`, on by default since"
+        " 2026-12-04: one angle per frame about an axis fixed in the box); free, as before, it was 17.7-32.3° off"
+        " (`--no-joints`). The free fit's trouble: the lid is a thin slab seen obliquely; as it opens its top"
+        " face turns edge-on and its underside comes into view. Its rotation is underestimated from the first"
+        " frames on, and the error jumps when the top face turns away. Measured with tracks made on the lid"
+        " alone (true per-frame lid masks, so no window"
         " straddles the box): the lid's median error is still 4.7-15.6°, its tracks drift as its faces"
         " foreshorten (`tracks.md`), and even where they are within 0.15 px (frames 1-8) the error grows to 2.5°"
         " by frame 10: a near-planar part under near-affine viewing leaves its tilt and its rotation about an"
