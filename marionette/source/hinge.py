@@ -9,7 +9,8 @@ across the axis then pins the angle. The model is fitted by variable
 projection: the axis (direction and position, 4 parameters) and the angles
 are the unknowns of a robust least-squares problem whose residuals are the
 reprojection errors of the part's tracks, each track's 3D point re-solved
-for every candidate motion. Tracks that do not follow the fitted hinge (a
+for every candidate motion, on evenly spaced key frames; each other frame's
+angle is then fitted alone. Tracks that do not follow the fitted hinge (a
 few of another part's tracks carry its label near the seam) are dropped and
 the fit repeated.
 
@@ -39,13 +40,13 @@ _LOSS_SCALE = 0.5
 _GAUGE_WEIGHT = 1.0
 #: The fit uses at most this many tracks (the longest), plus the longest few seen in each frame.
 _MAX_TRACKS = 400
+_TRACKS_PER_FRAME = 16
+#: At most this many evenly spaced frames in the joint fit of the axis and the angles.
+_KEY_FRAMES = 24
 #: A point nearer than this (in the poses' units) to the camera plane counts as behind it, and its observations
 #: as this many pixels off.
 _MIN_DEPTH = 1e-6
 _BEHIND_PX = 1e3
-#: At most this many evenly spaced frames in the joint fit of the axis and the angles.
-_KEY_FRAMES = 24
-_TRACKS_PER_FRAME = 16
 #: A track whose median residual under the first fit exceeds this (pixels) is dropped before the second.
 _DROP_PX = 1.0
 
@@ -61,7 +62,7 @@ class HingeFit:
     axis : (3,) float64
         Unit direction of the hinge axis, in the body's frame-0 coordinates.
     point : (3,) float64
-        A point of the axis (the one closest to the origin).
+        A point of the axis.
     angles : (T,) float64
         Turn about the axis, radians; 0 at frame 0.
     residual_px : float
