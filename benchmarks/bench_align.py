@@ -95,7 +95,8 @@ def main() -> None:
               "windows of 8 frames grown in time and Adam on the poses inside the reconstruction were tried and "
               "did not break that circle (closing note of 2026-12-01). The hinge's tracker row is its lid fitted "
               "as a hinge on the body (`marionette/source/hinge.py`, on by default since 2026-12-04; 14.0° median "
-              "free): the free per-part alignment does not improve on it (lid_relief.md).", ""]
+              "free, 1.55° hinged): the free per-part alignment does not improve on it (1.83°) (lid_relief.md).",
+              ""]
     OUT.write_text("\n".join(lines))
     print(f"wrote {OUT}")
 
