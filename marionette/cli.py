@@ -342,8 +342,7 @@ def extract(source: Annotated[Path, typer.Argument(help="Video file or folder of
             max_pixels: MaxPixels = DEFAULT_MAX_PIXELS, smooth: Smooth = 1.0, plot: Plot = None,
             source_point: SourcePoint = None, source_box: SourceBox = None, source_exclude: SourceExclude = None,
             save_masks: SaveMasks = None, recover_frames: RecoverFrames = True, joints: Joints = True,
-            quiet: Quiet = False,
-            verbose: Verbose = False, json_summary: Json = False, config: Config = None) -> None:
+            quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False, config: Config = None) -> None:
     """Extract the SpaT prior (per-part rigid motion) from a source video."""
     _output_file(output, ".npz", "--output")
     prompt = _prompt("source", source_point, source_box, source_exclude)

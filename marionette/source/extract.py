@@ -81,8 +81,9 @@ class ExtractOptions:
         One-part fits only: a part's own pixels in a lost frame are not known.
     joints : bool
         Fit each part that turns about a fixed axis of the part that turns
-        least (a lid on a box, a door on its frame) as a hinge (:mod:`~marionette.source.hinge`) when that
-        explains its tracks as well as its free 6-DoF poses do.
+        least (a lid on a box, a door on its frame) as a hinge on it
+        (:mod:`~marionette.source.hinge`) when that explains its tracks as
+        well as its free 6-DoF poses do.
     relief : float
         Half-thickness of the inflated shape prior relative to the mask's
         inscribed radius (1: a disc mask becomes a sphere).
