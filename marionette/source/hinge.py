@@ -233,7 +233,7 @@ def fit_hinge(uv: np.ndarray, visible: np.ndarray, body_poses: np.ndarray, free_
     # then each other frame's angle alone, about that axis.
     key = np.unique(np.linspace(0, len(body_poses) - 1, min(len(body_poses), _KEY_FRAMES)).round().astype(int))
     fitted = _fit_key_frames(uv[key], visible[key], body_poses[key], free_poses[key], k, axis0, point0, angles0[key],
-                             max_evaluations)
+                             min_track_frames, max_evaluations)
     if fitted is None:
         return None
     axis, point, key_angles, points, tracks, dropped = fitted
@@ -246,7 +246,8 @@ def fit_hinge(uv: np.ndarray, visible: np.ndarray, body_poses: np.ndarray, free_
     return HingeFit(poses, axis, point, angles, hinged, free, dropped)
 
 
-def _fit_key_frames(uv, visible, body_poses, free_poses, k, axis0, point0, angles0, max_evaluations):
+def _fit_key_frames(uv, visible, body_poses, free_poses, k, axis0, point0, angles0, min_track_frames,
+                    max_evaluations):
     """Axis, point, angles (T',), the tracks' points (M', 3) and which tracks they are ((M,) bool), and how many
     tracks were dropped, from the key frames' tracks ``uv`` (T', M, 2); None if too few tracks follow a hinge."""
     e1 = np.cross(axis0, np.eye(3)[np.argmin(np.abs(axis0))])
@@ -270,7 +271,7 @@ def _fit_key_frames(uv, visible, body_poses, free_poses, k, axis0, point0, angle
             return least_squares(residuals, start, args=(data,), loss="cauchy", f_scale=_LOSS_SCALE,
                                  max_nfev=max_evaluations).x
 
-    sample = _sample_tracks(visible, visible.sum(axis=0) >= 3)
+    sample = _sample_tracks(visible, visible.sum(axis=0) >= min_track_frames)
     if sample.sum() < 6:
         return None
     obs = _Observations(uv, visible, sample)
@@ -287,7 +288,7 @@ def _fit_key_frames(uv, visible, body_poses, free_poses, k, axis0, point0, angle
         fit = robust_fit(fit, obs)
     axis, point, angles = unpack(fit)
     points = obs.residuals(hinge_poses(body_poses, axis, point, angles), k)[1]
-    return axis, point, angles, points, tracks, int((~follows).sum())
+    return axis, point, angles, points, tracks, int((sample & ~tracks).sum())
 
 
 def _frame_angle(uv: np.ndarray, visible: np.ndarray, points: np.ndarray, body_pose: np.ndarray, axis: np.ndarray,
