@@ -8,7 +8,7 @@ from scipy.spatial.transform import Rotation
 
 from marionette.geometry import rotation_angle_deg
 from marionette.source.extract import _HINGE_TOLERANCE_PX
-from marionette.source.hinge import _Observations, fit_hinge, hinge_poses
+from marionette.source.hinge import _initial_hinge, _Observations, fit_hinge, hinge_poses
 
 K = np.array([[300.0, 0, 160], [0, 300.0, 120], [0, 0, 1]])
 T = 24
@@ -48,6 +48,17 @@ def test_points_are_solved_from_exact_tracks(hinge):
     errors, solved = obs.residuals(hinge_poses(body, axis, point, angles), K)
     np.testing.assert_allclose(solved, points, atol=1e-8)
     assert np.abs(errors).max() < 1e-8
+
+
+def test_the_start_reads_a_hinge_off_its_relative_poses_exactly(hinge):
+    """The axis, a point of it and every angle, the widest turn's included."""
+    body, axis, point, angles, *_ = hinge
+    relative = np.linalg.inv(body) @ hinge_poses(body, axis, point, angles)
+    found_axis, found_point, found_angles = _initial_hinge(relative)
+    np.testing.assert_allclose(found_axis, axis, atol=1e-9)
+    np.testing.assert_allclose(found_angles, angles, atol=1e-9)
+    np.testing.assert_allclose(hinge_poses(body, found_axis, found_point, found_angles),
+                               hinge_poses(body, axis, point, angles), atol=1e-9)
 
 
 def test_a_hinge_comes_back_from_free_poses_off_by_the_bas_relief(hinge):

@@ -195,8 +195,8 @@ def _solve_points(t: np.ndarray, uv: np.ndarray, starts: np.ndarray, poses: np.n
 def _initial_hinge(relative: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Axis direction (3,), axis point (3,) and angles (T,) closest to relative poses (T, 4, 4)."""
     rotvecs = Rotation.from_matrix(relative[:, :3, :3]).as_rotvec()  # (T, 3)
-    axis = rotvecs[np.argmax(np.linalg.norm(rotvecs, axis=1))]
-    axis /= np.linalg.norm(axis)
+    widest = rotvecs[np.argmax(np.linalg.norm(rotvecs, axis=1))]
+    axis = widest / np.linalg.norm(widest)  # a new array: the angles below need that frame's rotation vector
     # Points of the axis stay put: (I - R_t) p = t_t for every frame, in the least-squares sense.
     lhs = np.concatenate(np.eye(3) - relative[1:, :3, :3])
     point = np.linalg.lstsq(lhs, np.concatenate(relative[1:, :3, 3]), rcond=None)[0]
