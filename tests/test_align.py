@@ -6,13 +6,23 @@ true poses are the loss's minimum and a perturbed pose must come back to them.
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from marionette.camera import Camera
 from marionette.errors import InputError
 from marionette.gaussians import Gaussians
 from marionette.geometry import axis_angle_to_matrix, invert_transform, make_transform, rotation_angle_deg
 from marionette.reconstruct._init import pose_gaussians
-from marionette.reconstruct.align import AlignOptions, align_poses, move_parts, twist_gradient, twist_loss
+from marionette.reconstruct.align import (
+    AlignOptions,
+    align_poses,
+    joint_gradient,
+    move_joints,
+    move_parts,
+    twist_gradient,
+    twist_loss,
+)
+from marionette.reconstruct.joints import Hinge, check_hinges, hinges_from_metadata, snap_to_hinges
 from marionette.reconstruct.shading import Lighting, Shading, unit_rows
 from marionette.render import render
 
@@ -193,6 +203,85 @@ def test_twist_gradient_is_the_chain_rule_of_move_parts():
             fd[k, i] = (loss(x + step) - loss(x - step)) / 2e-6
     np.testing.assert_allclose(twist_gradient(left, x, radius), fd, rtol=1e-6, atol=1e-6)
     np.testing.assert_allclose(move_parts(poses, np.zeros((2, 6)), centres, radius), poses)
+
+
+#: The two-part box's lid hinged on the body's back top edge (body frame-0 coordinates).
+LID_HINGE = Hinge(1, 0, np.array([1.0, 0.0, 0.0]), np.array([0.0, -0.34, 5.6]))
+
+
+def on_hinge(body: np.ndarray, lid: np.ndarray, hinge: Hinge) -> bool:
+    """Whether the lid's pose (4, 4) is its body's (4, 4) turned about the hinge's axis."""
+    relative = invert_transform(body) @ lid
+    rotvec = Rotation.from_matrix(relative[:3, :3]).as_rotvec()
+    return (np.linalg.norm(np.cross(rotvec, hinge.axis)) < 1e-9
+            and np.allclose(relative[:3, :3] @ hinge.point + relative[:3, 3], hinge.point, atol=1e-9))
+
+
+def test_joint_gradient_is_the_chain_rule_of_move_joints():
+    """As above, with part 1 hinged on part 0: it moves with the body and turns by x[1, 0] about the axis."""
+    rng = np.random.default_rng(5)
+    hinge = LID_HINGE
+    body = turn([0, 1, 0], 10)
+    poses = np.stack([body, body @ turn(hinge.axis, -20, about=hinge.point)])
+    points = [rng.normal(size=(20, 3)) + [0, 0, 5], rng.normal(size=(15, 3)) + [0, -0.4, 5]]
+    weights = [rng.normal(size=(20, 3)), rng.normal(size=(15, 3))]
+    centres, radius = np.array([[0.0, 0.2, 5.0], [0.0, -0.4, 5.0]]), 1.7
+    x = np.array([[0.2, -0.3, 0.1, 0.2, 0.1, -0.2], [0.4, 0, 0, 0, 0, 0]])
+
+    def moved(x):
+        m = move_joints(poses, x, centres, radius, [hinge])[0]
+        return [p @ m[k, :3, :3].T + m[k, :3, 3] for k, p in enumerate(points)]
+
+    def loss(x):
+        return sum(float((w * mu).sum()) for w, mu in zip(weights, moved(x)))
+
+    poses_x, pivots = move_joints(poses, x, centres, radius, [hinge])
+    assert on_hinge(poses_x[0], poses_x[1], hinge)
+    left = np.array([np.r_[np.cross(mu - c, w).sum(axis=0), w.sum(axis=0)]
+                     for mu, w, c in zip(moved(x), weights, pivots)])
+    fd = np.zeros_like(x)
+    for k, i in [(0, i) for i in range(6)] + [(1, 0)]:
+        step = np.zeros_like(x)
+        step[k, i] = 1e-6
+        fd[k, i] = (loss(x + step) - loss(x - step)) / 2e-6
+    np.testing.assert_allclose(joint_gradient(left, x, radius, poses_x, pivots, [hinge]), fd, rtol=1e-6, atol=1e-6)
+
+
+def test_a_hinged_lid_comes_back_on_its_hinge():
+    """The two-part box of the xfail above with its lid on a hinge: from the body 2° and the lid 5° off about the
+    hinge, both come back, and the lid stays on its hinge."""
+    g, parts = textured_object(two_parts=True)
+    body = turn([0, 1, 0], 10)
+    truth = np.stack([body, body @ turn(LID_HINGE.axis, -20, about=LID_HINGE.point)])
+    start_body = turn([0, 0, 1], 2) @ body
+    start = np.stack([start_body, start_body @ turn(LID_HINGE.axis, -15, about=LID_HINGE.point)])
+    result = align_one(g, parts, truth, start, hinges=[LID_HINGE])
+    # Measured 0.04° / 0.06° (free: 0.19° / 0.10°, the lid off its hinge); the loss's own minimum is a few
+    # hundredths of a degree off the truth (a binary mask against soft edges, 8-bit colours).
+    assert errors(result.poses[0, 1], truth[0])[0] < 0.1
+    assert errors(result.poses[1, 1], truth[1])[0] < 0.1
+    assert on_hinge(result.poses[0, 1], result.poses[1, 1], LID_HINGE)
+
+
+def test_hinges_are_read_from_the_metadata_checked_and_snapped_onto():
+    joints = {"1": {"model": "hinge", "on_part": 0, "axis": [2.0, 0.0, 0.0], "point": [0.0, -0.34, 5.6]},
+              "2": {"model": "free", "reason": "it barely turns"}}
+    hinges = check_hinges(hinges_from_metadata(joints), 3)
+    assert len(hinges) == 1 and hinges[0].part == 1 and hinges[0].body == 0
+    np.testing.assert_allclose(hinges[0].axis, [1, 0, 0])
+    for bad in ([Hinge(1, 1, np.ones(3), np.zeros(3))], [Hinge(1, 0, np.ones(3), np.zeros(3)),
+                                                         Hinge(2, 1, np.ones(3), np.zeros(3))],
+                [Hinge(3, 0, np.ones(3), np.zeros(3))], [Hinge(1, 0, np.zeros(3), np.zeros(3))],
+                [Hinge(1, 0, np.ones(3), np.zeros(3)), Hinge(1, 2, np.ones(3), np.zeros(3))]):
+        with pytest.raises(InputError):
+            check_hinges(bad, 3)
+    # A lid pose nudged off its axis (as smoothing leaves it) is put back on it, with the turn about the axis kept.
+    body = turn([0, 1, 0], 10)
+    lid = body @ turn([1, 0.05, 0], -20, about=(0.0, -0.34, 5.62))
+    snapped = snap_to_hinges(np.stack([body, lid])[:, None], hinges)[:, 0]
+    np.testing.assert_array_equal(snapped[0], body)
+    assert on_hinge(snapped[0], snapped[1], hinges[0]) and errors(snapped[1], lid)[0] < 20 * 0.05  # turn x tilt
+    assert abs(errors(snapped[1], body)[0] - 20.0) < 0.05
 
 
 def test_bad_inputs_raise():

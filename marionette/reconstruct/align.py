@@ -24,6 +24,13 @@ per part and pivot ``c + v`` (the left-perturbation gradient), mapped to ξ
 by the left Jacobian of SO(3), so it is exact and L-BFGS (scipy) minimises
 L. The fit runs coarse to fine over an image pyramid (halving the working
 resolution per level), each level starting from the last one's answer.
+
+A part hinged on another (:mod:`.joints`, the extraction's hinges) moves
+with its body and turns about the axis by one angle ``θ``: the pose
+``exp(θ a) (μ - p) + p`` after the body's twist, with ``a`` and ``p`` the
+axis and its point where the moved body puts them. Its left gradient about
+``p`` gives ``∂L/∂θ = g_ω · a``, and, moved to the body's pivot, joins the
+body's own (:func:`joint_gradient`).
 """
 
 from __future__ import annotations
@@ -43,10 +50,11 @@ from ..render import render
 from ..render.backward import render_with_grad
 from ._init import pose_gaussians
 from ._views import FitView, make_view
+from .joints import Hinge, check_hinges, snap_to_hinges
 from .shading import Shading
 
 __all__ = ["AlignOptions", "Alignment", "align_poses", "align_frame", "frame_pyramid", "frame_loss", "move_parts",
-           "rms_radius", "twist_loss", "twist_gradient"]
+           "move_joints", "joint_gradient", "rms_radius", "twist_loss", "twist_gradient"]
 
 
 @dataclass(frozen=True)
@@ -174,14 +182,60 @@ def frame_loss(gaussians: Gaussians, parts: np.ndarray, poses: np.ndarray, view:
     return loss, grads.pose
 
 
+def move_joints(poses: np.ndarray, x: np.ndarray, centres: np.ndarray, radius: float,
+                hinges: Sequence[Hinge] = ()) -> tuple[np.ndarray, np.ndarray]:
+    """Poses (K, 4, 4) moved by twists x (K, 6) as :func:`move_parts`, except that a hinged part moves with
+    its body and then turns by ``x[part, 0]`` radians about its axis (its other entries are unused).
+
+    Returns the moved poses (K, 4, 4) and the pivots (K, 3) of the gradients :func:`joint_gradient` takes:
+    the moved centres, and a hinged part's axis point.
+    """
+    x_body, c_body = x.copy(), np.array(centres, dtype=np.float64)
+    for h in hinges:
+        x_body[h.part], c_body[h.part] = x[h.body], centres[h.body]
+    moved = move_parts(poses, x_body, c_body, radius)
+    pivots = c_body + x_body[:, 3:] * radius
+    for h in hinges:
+        axis, point = _axis_in_frame(moved[h.body], h)
+        rot = axis_angle_to_matrix(x[h.part, 0] * axis)
+        moved[h.part, :3, :3] = rot @ moved[h.part, :3, :3]
+        moved[h.part, :3, 3] = rot @ (moved[h.part, :3, 3] - point) + point
+        pivots[h.part] = point
+    return moved, pivots
+
+
+def _axis_in_frame(body_pose: np.ndarray, hinge: Hinge) -> tuple[np.ndarray, np.ndarray]:
+    """The hinge's axis direction (3,) and point (3,) where the body's pose (4, 4) puts them."""
+    return body_pose[:3, :3] @ hinge.axis, body_pose[:3, :3] @ hinge.point + body_pose[:3, 3]
+
+
+def joint_gradient(g: np.ndarray, x: np.ndarray, radius: float, moved: np.ndarray, pivots: np.ndarray,
+                   hinges: Sequence[Hinge] = ()) -> np.ndarray:
+    """Gradient (K, 6) with respect to x (K, 6) of :func:`move_joints`, from the gradient g (K, 6) with respect
+    to a left-multiplied twist ``[ω, v]`` of each part about its pivot (K, 3); ``moved`` (K, 4, 4) are the
+    moved poses. A hinged part's row is ``[d/dθ, 0, 0, 0, 0, 0]``."""
+    g = np.array(g, dtype=np.float64)
+    angle = {}
+    for h in hinges:
+        axis, point = _axis_in_frame(moved[h.body], h)
+        angle[h.part] = g[h.part, :3] @ axis
+        # The part moves with its body: its gradient joins the body's, moved to the body's pivot.
+        g[h.body, :3] += g[h.part, :3] + np.cross(point - pivots[h.body], g[h.part, 3:])
+        g[h.body, 3:] += g[h.part, 3:]
+    grad = twist_gradient(g, x, radius)
+    for part, value in angle.items():
+        grad[part] = [value, 0, 0, 0, 0, 0]
+    return grad
+
+
 def twist_loss(gaussians: Gaussians, parts: np.ndarray, poses: np.ndarray, x: np.ndarray, centres: np.ndarray,
-               radius: float, view: FitView, options: AlignOptions,
-               scale: float = np.inf) -> tuple[float, np.ndarray]:
-    """Loss of one view with poses (K, 4, 4) moved by twists x (K, 6) (:func:`move_parts`), and its gradient (K, 6);
-    ``scale``: the silhouette term's (see :func:`frame_loss`)."""
-    loss, g = frame_loss(gaussians, parts, move_parts(poses, x, centres, radius), view, options,
-                         pivots=centres + x[:, 3:] * radius, scale=scale)
-    return loss, twist_gradient(g, x, radius)
+               radius: float, view: FitView, options: AlignOptions, scale: float = np.inf,
+               hinges: Sequence[Hinge] = ()) -> tuple[float, np.ndarray]:
+    """Loss of one view with poses (K, 4, 4) moved by twists x (K, 6) (:func:`move_joints`), and its gradient
+    (K, 6) (:func:`joint_gradient`); ``scale``: the silhouette term's (see :func:`frame_loss`)."""
+    moved, pivots = move_joints(poses, x, centres, radius, hinges)
+    loss, g = frame_loss(gaussians, parts, moved, view, options, pivots=pivots, scale=scale)
+    return loss, joint_gradient(g, x, radius, moved, pivots, hinges)
 
 
 def twist_gradient(g: np.ndarray, x: np.ndarray, radius: float) -> np.ndarray:
@@ -199,12 +253,15 @@ class _OutOfEvaluations(Exception):
 
 
 def align_frame(gaussians: Gaussians, parts: np.ndarray, poses: np.ndarray, pyramid: Sequence[FitView],
-                movable: np.ndarray, radius: float, options: AlignOptions) -> tuple[np.ndarray, float, float]:
+                movable: np.ndarray, radius: float, options: AlignOptions,
+                hinges: Sequence[Hinge] = ()) -> tuple[np.ndarray, float, float]:
     """Refine one frame's poses (K, 4, 4) of the parts marked ``movable`` (K,) bool, coarse to fine.
 
-    ``pyramid`` lists the frame's views from coarsest to finest. Returns the
-    refined poses (K, 4, 4) and the finest level's loss before and after;
-    the poses are returned unchanged when they did not lower that loss.
+    ``pyramid`` lists the frame's views from coarsest to finest. A hinged part
+    (``hinges``, its pose on the hinge) moves with its body and, if movable,
+    turns about its axis: one angle. Returns the refined poses (K, 4, 4) and
+    the finest level's loss before and after; the poses are returned
+    unchanged when they did not lower that loss.
     """
     poses = start = np.asarray(poses, dtype=np.float64)
     k_count = len(poses)
@@ -215,16 +272,20 @@ def align_frame(gaussians: Gaussians, parts: np.ndarray, poses: np.ndarray, pyra
         mine = means[parts == k]
         if len(mine):
             centres[k] = poses[k, :3, :3] @ mine.mean(axis=0) + poses[k, :3, 3]
-    free = np.flatnonzero(movable)
+    # The entries of the twists x (K, 6) that are fitted: all six of a free part, a hinged part's angle.
+    fitted = np.zeros((k_count, 6), bool)
+    fitted[np.asarray(movable, bool)] = True
+    for h in hinges:
+        fitted[h.part, 1:] = False
     fine = options.silhouette_scale
     before = frame_loss(gaussians, parts, poses, pyramid[-1], options, scale=fine)[0]
-    if not len(free):
+    if not fitted.any():
         return poses, before, before
     # Every level with the squared silhouette (a wide basin), then the finest again with the robust one
     # (occluders, accuracy).
     stages = [(view, np.inf) for view in pyramid] + ([(pyramid[-1], fine)] if np.isfinite(fine) else [])
     for view, scale in stages:
-        best = {"loss": np.inf, "x": np.zeros(6 * len(free)), "evaluations": 0}
+        best = {"loss": np.inf, "x": np.zeros(fitted.sum()), "evaluations": 0}
 
         def objective(flat: np.ndarray, view: FitView = view, best: dict = best,
                       scale: float = scale) -> tuple[float, np.ndarray]:
@@ -234,24 +295,24 @@ def align_frame(gaussians: Gaussians, parts: np.ndarray, poses: np.ndarray, pyra
                 raise _OutOfEvaluations
             best["evaluations"] += 1
             x = np.zeros((k_count, 6))
-            x[free] = flat.reshape(-1, 6)
-            loss, grad = twist_loss(gaussians, parts, poses, x, centres, radius, view, options, scale)
+            x[fitted] = flat
+            loss, grad = twist_loss(gaussians, parts, poses, x, centres, radius, view, options, scale, hinges)
             if loss < best["loss"]:
                 best.update(loss=loss, x=flat.copy())
-            return loss, grad[free].ravel()
+            return loss, grad[fitted]
 
         # A box on the twist keeps a line search from leaping to a far pose that happens to score lower
         # (an occluder can make one): a refinement starts within tens of degrees of the answer.
-        bounds = [(-options.max_step, options.max_step)] * (6 * len(free))
+        bounds = [(-options.max_step, options.max_step)] * int(fitted.sum())
         try:
-            minimize(objective, np.zeros(6 * len(free)), jac=True, method="L-BFGS-B", bounds=bounds,
+            minimize(objective, np.zeros(fitted.sum()), jac=True, method="L-BFGS-B", bounds=bounds,
                      options={"maxiter": options.iterations, "ftol": 1e-10, "gtol": 1e-9})
         except _OutOfEvaluations:
             pass  # the best twist seen is kept, as after a normal stop
         x = np.zeros((k_count, 6))
-        x[free] = best["x"].reshape(-1, 6)
-        poses = move_parts(poses, x, centres, radius)
-        centres = centres + x[:, 3:] * radius
+        x[fitted] = best["x"]
+        poses = move_joints(poses, x, centres, radius, hinges)[0]
+        centres = centres + x[:, 3:] * radius  # a hinged part's centre is not used: it turns about its axis
     after = frame_loss(gaussians, parts, poses, pyramid[-1], options, scale=fine)[0]
     if after > before:  # the coarse levels led astray and the finest did not come back: keep the start
         return start, before, before
@@ -267,8 +328,8 @@ def frame_pyramid(image: np.ndarray, mask: np.ndarray, K: np.ndarray, scale: flo
 
 def align_poses(gaussians: Gaussians, parts: np.ndarray, frames, masks, K: np.ndarray, poses: np.ndarray, *,
                 frames_to_align: Sequence[int] | None = None, movable: np.ndarray | None = None,
-                shading: Shading | None = None, options: AlignOptions = AlignOptions(),
-                progress: ProgressCallback | None = None) -> Alignment:
+                shading: Shading | None = None, hinges: Sequence[Hinge] = (),
+                options: AlignOptions = AlignOptions(), progress: ProgressCallback | None = None) -> Alignment:
     """Refine per-part poses photometrically against the frames.
 
     Parameters
@@ -290,6 +351,11 @@ def align_poses(gaussians: Gaussians, parts: np.ndarray, frames, masks, K: np.nd
         frame's starting poses, then, from the refined poses, shaded as those
         face it on the finest level again (the shading's own pose gradient is
         left out). Without it the Gaussians keep their own colours.
+    hinges : sequence of Hinge, optional
+        Parts hinged on others (:func:`~marionette.reconstruct.joints.hinges_from_metadata` reads them from
+        a prior's ``metadata["joints"]``): in each aligned frame, each is put on its hinge
+        (:func:`~marionette.reconstruct.joints.snap_to_hinges`), moves with its body and turns about its
+        axis by one fitted angle, so it stays on its hinge.
     options : AlignOptions
     progress : callable ``(done, total)``, optional, after each frame.
 
@@ -304,6 +370,7 @@ def align_poses(gaussians: Gaussians, parts: np.ndarray, frames, masks, K: np.nd
             (len(parts) and not 0 <= parts.min() <= parts.max() < len(poses)):
         raise InputError("align_poses: poses must be (K, T, 4, 4) and parts (N,) indices into the K parts")
     k_count, t_count = poses.shape[:2]
+    hinges = check_hinges(hinges, k_count)
     movable = np.ones(k_count, bool) if movable is None else np.asarray(movable, bool)
     h, w = np.asarray(masks[0]).shape
     scale = min(1.0, options.max_side / max(w, h))
@@ -314,14 +381,15 @@ def align_poses(gaussians: Gaussians, parts: np.ndarray, frames, masks, K: np.nd
     for i, t in enumerate(todo):
         mask = np.asarray(masks[t], bool)
         if mask.any():
+            poses[:, t] = snap_to_hinges(poses[:, t:t + 1], hinges)[:, 0]
             pyramid = frame_pyramid(np.asarray(frames[t]), mask, K, scale, options.levels, t)
             model = gaussians if shading is None else shading.lit(gaussians, parts, poses[:, t, :3, :3])
             poses[:, t], before[t], after[t] = align_frame(model, parts, poses[:, t], pyramid, movable,
-                                                           max(radius, 1e-9), options)
+                                                           max(radius, 1e-9), options, hinges)
             if shading is not None:  # lit as the refined pose faces the light, the finest level once more
                 model = shading.lit(gaussians, parts, poses[:, t, :3, :3])
                 poses[:, t], _, after[t] = align_frame(model, parts, poses[:, t], pyramid[-1:], movable,
-                                                       max(radius, 1e-9), options)
+                                                       max(radius, 1e-9), options, hinges)
             done.append(t)
         if progress:
             progress(i + 1, len(todo))
