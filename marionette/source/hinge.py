@@ -178,7 +178,8 @@ def _solve_points(t: np.ndarray, uv: np.ndarray, starts: np.ndarray, poses: np.n
             step = _solve3(normal, grad)
             for a in range(3):
                 x[a] -= step[a]
-        points[m] = x
+        # Element by element: an array store compiles numba's shape-error formatting (2.6 s of 5.9 s).
+        points[m, 0], points[m, 1], points[m, 2] = x[0], x[1], x[2]
         for i in range(starts[m], stop):
             r = poses[t[i]]
             cx = r[0, 0] * x[0] + r[0, 1] * x[1] + r[0, 2] * x[2] + r[0, 3]
