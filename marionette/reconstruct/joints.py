@@ -68,9 +68,9 @@ def check_hinges(hinges: Sequence[Hinge], num_parts: int) -> list[Hinge]:
 def snap_to_hinges(poses: np.ndarray, hinges: Sequence[Hinge]) -> np.ndarray:
     """Poses (K, T, 4, 4) with each hinged part put back on its hinge.
 
-    Its turn relative to the body is replaced by the turn about the axis
-    closest to it (the rotation vector's component along the axis), so a pose
-    that drifted off the axis (smoothed, say) starts the refinement on it.
+    Its turn relative to the body is replaced by the turn about the hinge's
+    axis closest to it (the rotation vector's component along the axis), so a
+    pose that drifted off the axis (smoothed, say) starts the refinement on it.
     """
     out = np.array(poses, dtype=np.float64)
     for h in hinges:
