@@ -44,7 +44,7 @@ from scipy.optimize import minimize
 
 from ..errors import InputError
 from ..gaussians import Gaussians
-from ..geometry import axis_angle_to_matrix, so3_left_jacobian
+from ..geometry import axis_angle_to_matrix, so3_left_jacobian, transform_points
 from ..progress import ProgressCallback
 from ..render import render
 from ..render.backward import render_with_grad
@@ -196,17 +196,12 @@ def move_joints(poses: np.ndarray, x: np.ndarray, centres: np.ndarray, radius: f
     moved = move_parts(poses, x_body, c_body, radius)
     pivots = c_body + x_body[:, 3:] * radius
     for h in hinges:
-        axis, point = _axis_in_frame(moved[h.body], h)
+        axis, point = moved[h.body, :3, :3] @ h.axis, transform_points(moved[h.body], h.point)
         rot = axis_angle_to_matrix(x[h.part, 0] * axis)
         moved[h.part, :3, :3] = rot @ moved[h.part, :3, :3]
         moved[h.part, :3, 3] = rot @ (moved[h.part, :3, 3] - point) + point
         pivots[h.part] = point
     return moved, pivots
-
-
-def _axis_in_frame(body_pose: np.ndarray, hinge: Hinge) -> tuple[np.ndarray, np.ndarray]:
-    """The hinge's axis direction (3,) and point (3,) where the body's pose (4, 4) puts them."""
-    return body_pose[:3, :3] @ hinge.axis, body_pose[:3, :3] @ hinge.point + body_pose[:3, 3]
 
 
 def joint_gradient(g: np.ndarray, x: np.ndarray, radius: float, moved: np.ndarray, pivots: np.ndarray,
@@ -217,10 +212,9 @@ def joint_gradient(g: np.ndarray, x: np.ndarray, radius: float, moved: np.ndarra
     g = np.array(g, dtype=np.float64)
     angle = {}
     for h in hinges:
-        axis, point = _axis_in_frame(moved[h.body], h)
-        angle[h.part] = g[h.part, :3] @ axis
+        angle[h.part] = g[h.part, :3] @ (moved[h.body, :3, :3] @ h.axis)  # its pivot is on the moved axis
         # The part moves with its body: its gradient joins the body's, moved to the body's pivot.
-        g[h.body, :3] += g[h.part, :3] + np.cross(point - pivots[h.body], g[h.part, 3:])
+        g[h.body, :3] += g[h.part, :3] + np.cross(pivots[h.part] - pivots[h.body], g[h.part, 3:])
         g[h.body, 3:] += g[h.part, 3:]
     grad = twist_gradient(g, x, radius)
     for part, value in angle.items():
