@@ -1,7 +1,10 @@
 """Fixtures shared by the tests: the xdist workers' set-up (one BLAS thread each, the numba compiling shared on a
 cold cache); a small prior file and a target image."""
 
+import contextlib
 import fcntl
+import functools
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import cv2
@@ -14,17 +17,42 @@ from marionette.io import write_prior
 from marionette.prior import SpatPrior
 
 
-def _compile_rendering() -> None:
-    """The rasterizer's forward and backward kernels: two fitting steps on a tiny scene."""
-    from marionette.reconstruct import ReconstructOptions, reconstruct_object
-    from marionette.synthetic import make_scene
+def _small_view():
+    """A camera and 200 Gaussians of SH degree 3 in front of it (float32, as every caller's Gaussians)."""
+    from marionette.camera import Camera
+    from marionette.gaussians import Gaussians
 
-    scene = make_scene("outofplane", num_frames=2, size=(48, 36))
-    reconstruct_object(scene.frames, scene.masks, scene.ground_truth_prior(), options=ReconstructOptions(iterations=2))
+    rng = np.random.default_rng(0)
+    n = 200
+    gaussians = Gaussians.from_rgb(rng.normal(size=(n, 3)) * 0.3 + [0, 0, 3], rng.uniform(size=(n, 3)),
+                                   rng.uniform(0.02, 0.1, size=n), rng.uniform(0.3, 0.9, size=n))
+    gaussians = gaussians.with_sh(np.concatenate([gaussians.sh, rng.normal(size=(n, 15, 3)) * 0.05], axis=1))
+    return gaussians.turned(np.array([[0.9, 0.1, 0.3, 0.0]])), Camera.from_fov(48, 36)
+
+
+def _compile_forward() -> None:
+    """The rasterizer's forward kernels (SH colours and turns included)."""
+    from marionette.render import render
+    from marionette.render.backward import render_with_grad
+
+    gaussians, camera = _small_view()
+    render(gaussians, camera)
+    render_with_grad(gaussians, camera)
+
+
+def _compile_backward() -> None:
+    """The rasterizer's backward kernels, pose gradients included."""
+    from marionette.render.backward import render_with_grad
+
+    gaussians, camera = _small_view()
+    view = render_with_grad(gaussians, camera)
+    view.backward(np.ones((camera.height, camera.width, 3), np.float32), np.ones((camera.height, camera.width)),
+                  groups=[np.arange(100), np.arange(100, 200)])
 
 
 def _compile_extraction() -> None:
-    """The tracker's and the part fits' kernels, and the target lift's: a tiny hinge's prior, then a lifted photo."""
+    """The tracker's and the part fits' kernels, the synthetic renderer's and the target lift's: a tiny hinge's
+    prior, then a lifted photo."""
     from marionette.source import ExtractOptions, extract_prior
     from marionette.synthetic import make_scene
     from marionette.target.lift import lift_image
@@ -34,24 +62,55 @@ def _compile_extraction() -> None:
     lift_image(scene.frames[0], mask=scene.masks[0])
 
 
+@contextlib.contextmanager
+def _held(lock: Path, mode: int) -> Iterator[None]:
+    with open(lock, "a") as f:
+        fcntl.flock(f, mode)
+        yield
+
+
+def _head_start(compile_kernels: Callable[[], None]) -> None:
+    try:
+        compile_kernels()
+    except Exception:  # only a head start: a test that needs the same code shows what went wrong
+        pass
+
+
 def _share_the_compiling(worker: int, shared: Path) -> None:
     """On a cold numba cache (a fresh clone) every worker would compile every kernel, ~80 s each on two cores.
-    Worker 2k compiles the rendering kernels and 2k+1 the extraction's, each under its share's lock; then each
-    waits for the other share's lock, so that the kernels it did not compile are read from the cache. A warm
-    cache makes this a second's work."""
-    shares = [_compile_rendering, _compile_extraction]
-    locks = [shared / f"compile-{i}.lock" for i in range(len(shares))]
-    mine = worker % len(shares)
-    with open(locks[mine], "a") as held:
-        fcntl.flock(held, fcntl.LOCK_EX)
-        try:
-            shares[mine]()
-        except Exception:  # only a head start: a test that needs the same code shows what went wrong
-            pass
-    for i, lock in enumerate(locks):
-        if i != mine:
-            with open(lock, "a") as other:
-                fcntl.flock(other, fcntl.LOCK_SH)
+
+    Even workers compile the rasterizer, forward then backward (~45 s on two cores); odd ones the extraction's
+    kernels (~25 s), each under its share's lock, then wait for the others' locks so that the kernels they did
+    not compile are read from the cache. The backward pass, which few tests use, is not waited for: an odd worker
+    starts its tests once the forward kernels are in the cache, and its first backward pass waits for them
+    (:func:`_backward_waits_for`). A warm cache makes all this a second's work."""
+    forward, backward, extraction = (shared / f"compile-{name}.lock" for name in ("forward", "backward", "extraction"))
+    if worker % 2 == 0:
+        with _held(backward, fcntl.LOCK_EX):
+            with _held(forward, fcntl.LOCK_EX):
+                _head_start(_compile_forward)
+            _head_start(_compile_backward)
+        with _held(extraction, fcntl.LOCK_SH):
+            return
+    with _held(extraction, fcntl.LOCK_EX):
+        _head_start(_compile_extraction)
+    with _held(forward, fcntl.LOCK_SH):
+        _backward_waits_for(backward)
+
+
+def _backward_waits_for(lock: Path) -> None:
+    """Make this process's first backward pass wait for ``lock`` (held while another worker compiles it)."""
+    from marionette.render.backward import RenderWithGrad
+
+    first = RenderWithGrad.backward
+
+    @functools.wraps(first)
+    def backward_once_compiled(self, *args, **kwargs):
+        with _held(lock, fcntl.LOCK_SH):
+            RenderWithGrad.backward = first
+        return first(self, *args, **kwargs)
+
+    RenderWithGrad.backward = backward_once_compiled
 
 
 @pytest.fixture(scope="session", autouse=True)
