@@ -189,7 +189,9 @@ class AppServer:
         handler = type("Handler", (_Handler,), {"sessions": self.sessions})
         self._server = ThreadingHTTPServer((host, port), handler)
         self._server.daemon_threads = True
-        self._thread = threading.Thread(target=self._server.serve_forever, name="marionette-app", daemon=True)
+        # shutdown() waits for the serving loop's next poll: 0.5 s by default, at every stop.
+        self._thread = threading.Thread(target=self._server.serve_forever, kwargs={"poll_interval": 0.05},
+                                        name="marionette-app", daemon=True)
         self._thread.start()
         bound_host, bound_port = self._server.server_address[:2]
         self.url = f"http://{bound_host}:{bound_port}"
