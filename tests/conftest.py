@@ -113,6 +113,12 @@ def _backward_waits_for(lock: Path) -> None:
     RenderWithGrad.backward = backward_once_compiled
 
 
+def pytest_collection_modifyitems(items):
+    """Modules marked ``heavy`` first, the others in their order: the workers take whole files in this order,
+    and a long file taken last would run alone while the other cores wait."""
+    items.sort(key=lambda item: item.get_closest_marker("heavy") is None)
+
+
 @pytest.fixture(scope="session", autouse=True)
 def xdist_worker(request, tmp_path_factory):
     """One BLAS thread per xdist worker, then the compiling shared (:func:`_share_the_compiling`).

@@ -26,6 +26,8 @@ from marionette.reconstruct.joints import Hinge, check_hinges, hinges_from_metad
 from marionette.reconstruct.shading import Lighting, Shading, unit_rows
 from marionette.render import render
 
+pytestmark = pytest.mark.heavy
+
 W, H = 192, 160
 K = np.array([[190.0, 0, W / 2], [0, 190.0, H / 2], [0, 0, 1]])
 

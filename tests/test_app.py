@@ -19,6 +19,8 @@ from marionette.app import serve_app
 from marionette.io import read_video, write_video
 from marionette.synthetic import make_scene
 
+pytestmark = pytest.mark.heavy
+
 FRAMES = 8
 
 

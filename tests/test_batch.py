@@ -16,6 +16,8 @@ from marionette.io.atomic import atomic_path
 from marionette.progress import Reporter
 from marionette.synthetic import make_scene, render_object_image
 
+pytestmark = pytest.mark.heavy
+
 SOURCES = '''
 [[source]]
 name = "spin"

@@ -12,6 +12,8 @@ from marionette.cli import main
 from marionette.io import read_video, write_image
 from marionette.synthetic import make_scene, render_object_image
 
+pytestmark = pytest.mark.heavy
+
 
 def test_json_summary_lists_outputs_timings_and_figures(tmp_path, prior_file, target_png, capsys):
     out, preview = tmp_path / "out.mp4", tmp_path / "out.gif"

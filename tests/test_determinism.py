@@ -27,6 +27,8 @@ from marionette.render import render
 from marionette.source import ExtractOptions
 from marionette.synthetic import make_scene
 
+pytestmark = pytest.mark.heavy
+
 ONE_THREAD = {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
               "PYTHONHASHSEED": "123"}
 

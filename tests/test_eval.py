@@ -20,6 +20,8 @@ from marionette.reconstruct import ReconstructOptions
 from marionette.synthetic import make_scene
 from marionette.target.lift import LiftOptions, lift_image
 
+pytestmark = pytest.mark.heavy
+
 SIZE = (160, 120)
 
 

@@ -17,6 +17,8 @@ from marionette.source import ExtractOptions, extract_prior
 from marionette.source.rigid import RigidOptions
 from marionette.synthetic import make_scene
 
+pytestmark = pytest.mark.heavy
+
 
 def centroid_errors(prior, scene, part: int = 0, gt_part: int = 0) -> np.ndarray:
     """Per-frame centroid error in % of the ground-truth radius, after one best scale factor."""

@@ -10,6 +10,8 @@ from marionette.segment import SalientModel, salient_mask
 from marionette.source.foreground import ForegroundOptions, _carry, _propagate, auto_masks
 from marionette.synthetic import make_scene
 
+pytestmark = pytest.mark.heavy
+
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "videos"
 
 

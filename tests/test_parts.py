@@ -31,6 +31,8 @@ from marionette.source.rigid import ShapePrior
 from marionette.source.tracks import Tracks, track
 from marionette.synthetic import make_scene
 
+pytestmark = pytest.mark.heavy
+
 K = np.array([[300.0, 0.0, 159.5], [0.0, 300.0, 119.5], [0.0, 0.0, 1.0]])
 DAVIS_TRAIN = Path(__file__).resolve().parents[2] / "shared" / "data" / "videos" / "davis_train"
 

@@ -4,10 +4,13 @@ import re
 from pathlib import Path
 
 import numpy as np
+import pytest
 from typer.main import get_command
 
 from marionette.cli import app
 from marionette.io import read_video
+
+pytestmark = pytest.mark.heavy
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"

@@ -15,6 +15,8 @@ from marionette.reconstruct import ReconstructOptions, Reconstruction, reconstru
 from marionette.reconstruct._init import initial_gaussians
 from marionette.synthetic import make_scene
 
+pytestmark = pytest.mark.heavy
+
 T, SIZE = 16, (160, 120)
 EVEN, ODD = list(range(0, T, 2)), list(range(1, T, 2))
 #: Held-out (odd frames) masked PSNR the fit must reach. Measured 27.6-28.5 dB with 400-1000 iterations

@@ -15,6 +15,8 @@ from marionette.source import ExtractOptions, extract_prior
 from marionette.source.recover import FrameRecovery, RecoverOptions
 from marionette.synthetic import make_scene
 
+pytestmark = pytest.mark.heavy
+
 BLURRED = [12, 13, 14, 15]
 
 

@@ -17,6 +17,8 @@ from marionette.geometry import axis_angle_to_matrix, make_transform, matrix_to_
 from marionette.source import Tracks
 from marionette.source.rigid import RigidOptions, ShapePrior, _bundle_adjust, _project, carved_centroid, fit_rigid
 
+pytestmark = pytest.mark.heavy
+
 K = np.array([[300.0, 0.0, 159.5], [0.0, 300.0, 119.5], [0.0, 0.0, 1.0]])
 W, H = 320, 240
 CENTRE = np.array([0.0, 0.0, 5.0])

@@ -12,6 +12,8 @@ from marionette.scene.composite import _plane_homography
 from marionette.target.lift import LiftOptions, lift_image
 from marionette.trajectory import Trajectory
 
+pytestmark = pytest.mark.heavy
+
 SIZE = 96
 
 

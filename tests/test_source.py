@@ -22,6 +22,8 @@ from marionette.source.tracks import (
     _refine_masked_numpy,
 )
 
+pytestmark = pytest.mark.heavy
+
 K = np.array([[300.0, 0.0, 159.5], [0.0, 300.0, 119.5], [0.0, 0.0, 1.0]])
 W, H = 320, 240
 CENTRE = np.array([0.0, 0.0, 5.0])

@@ -15,6 +15,8 @@ from marionette.source.depth import DepthMaps, poses_from_depth, read_depths
 from marionette.source.tracks import track
 from marionette.synthetic import make_scene
 
+pytestmark = pytest.mark.heavy
+
 
 @pytest.fixture(scope="module")
 def clip(tmp_path_factory):
