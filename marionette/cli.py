@@ -17,18 +17,18 @@ import warnings
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Annotated, Any, Optional
+from typing import TYPE_CHECKING, Annotated, Any, Optional
 
 import numpy as np
 import typer
 
-from . import pipeline
 from .camera import MAX_IMAGE_SIDE, Camera
 from .errors import InputError
 from .geometry import rotation_angle_deg
 from .io import read_ply, read_prior, write_image, write_prior, write_splat_animation
 from .io.atomic import StagedOutputs, check_output_dir, check_output_folder, check_output_path, staged_outputs
-from .io.video import DEFAULT_MAX_PIXELS, MASK_FRAME_NAME
+from .io.ply import PLY_FRAME_NAME
+from .io.video import DEFAULT_MAX_PIXELS, DEFAULT_MAX_SIDE, MASK_FRAME_NAME
 from .options import (
     parse_background,
     parse_box,
@@ -38,17 +38,12 @@ from .options import (
     parse_scene_background,
     parse_size,
 )
-from .plot import plot_prior
 from .prior import CAMERA_EXTRA, MOTION_FRAMES
 from .progress import Reporter, interrupt_requested
-from .render import render
-from .render.camera_path import CAMERA_MOVES, check_camera_move, load_camera_path
-from .segment import Prompt
-from .source import ExtractOptions
-from .target.lift import LiftOptions
-from .target.shapes import SHAPES
 from .transfer.controls import LOOPS, output_length, source_times
-from .transfer.refine import RefineOptions
+
+if TYPE_CHECKING:
+    from .segment import Prompt
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   help="Transfer the rigid motion of a video onto a single image, via 3D Gaussians.")
@@ -283,6 +278,8 @@ SaveMasks = Annotated[Optional[Path], typer.Option(
 def _prompt(prefix: str, points: Optional[list[str]], box: Optional[str],
             exclude: Optional[list[str]]) -> Prompt | None:
     """The ``--{prefix}-point/-box/-exclude`` options as a Prompt; None when none is given."""
+    from .segment import Prompt
+
     if not points and box is None and not exclude:
         return None
     prompt = Prompt(tuple(_parsed(f"--{prefix}-point", parse_point, p) for p in points or ()),
@@ -302,6 +299,10 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
              max_pixels: int, smooth: float, plot, prompt: Prompt | None, save_masks: Path | None, session: _Session,
              recover_frames: bool = True, joints: bool = True):
     """Shared by ``extract`` and ``run``: check the options, extract, draw the plot."""
+    from . import pipeline
+    from .plot import plot_prior
+    from .source import ExtractOptions
+
     parts_value = _parsed("--parts", parse_parts, parts)
     _check_max_side(max_side)
     if max_pixels < 16 * 16 * 2:
@@ -338,7 +339,7 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
 @app.command()
 def extract(source: Annotated[Path, typer.Argument(help="Video file or folder of frames.")],
             output: Output, masks: Masks = None, depth: Depth = None, focal: Focal = None, parts: Parts = "1",
-            start: Start = 0, end: End = None, stride: Stride = 1, max_side: MaxSide = pipeline.DEFAULT_MAX_SIDE,
+            start: Start = 0, end: End = None, stride: Stride = 1, max_side: MaxSide = DEFAULT_MAX_SIDE,
             max_pixels: MaxPixels = DEFAULT_MAX_PIXELS, smooth: Smooth = 1.0, plot: Plot = None,
             source_point: SourcePoint = None, source_box: SourceBox = None, source_exclude: SourceExclude = None,
             save_masks: SaveMasks = None, recover_frames: RecoverFrames = True, joints: Joints = True,
@@ -441,6 +442,10 @@ def _playback(output: Path, target: Path, frames, speed, loop, reverse, rotation
               camera, camera_amount, camera_path, ply_dir, target_mask, target_prompt, target_depth, shape, polish,
               anchor, motion, part_seed, refine, preview, splats) -> _Playback:
     """Check every playback option (before any work starts) and the output paths."""
+    from . import pipeline
+    from .render.camera_path import CAMERA_MOVES, check_camera_move, load_camera_path
+    from .target.shapes import SHAPES
+
     _transfer_checks(frames, speed, fps)
     _check_loop(loop)
     for name, value in (("--rotation-scale", rotation_scale), ("--translation-scale", translation_scale)):
@@ -457,7 +462,7 @@ def _playback(output: Path, target: Path, frames, speed, loop, reverse, rotation
     _output_file(preview, ".gif", "--preview")
     _output_file(splats, ".npz", "--splats")
     if ply_dir is not None:
-        check_output_folder(ply_dir, pipeline.PLY_FRAME_NAME)
+        check_output_folder(ply_dir, PLY_FRAME_NAME)
     if anchor not in ("centroid", "world"):
         raise InputError(f"--anchor must be 'centroid' or 'world', got {anchor!r}")
     if motion not in MOTION_FRAMES:
@@ -481,6 +486,11 @@ def _playback(output: Path, target: Path, frames, speed, loop, reverse, rotation
 
 def _transfer_and_render(prior, target: Path, output: Path, play: _Playback, session: _Session):
     """Lift, transfer, render and stage the outputs the options ask for; the trajectory and the staged video."""
+    from . import pipeline
+    from .render.camera_path import load_camera_path
+    from .target.lift import LiftOptions
+    from .transfer.refine import RefineOptions
+
     if play.part_seeds:
         pipeline.check_part_seeds(prior, play.part_seeds)
     path_cameras = (None if play.camera_path is None
@@ -532,7 +542,7 @@ def _transfer_and_render(prior, target: Path, output: Path, play: _Playback, ses
         pipeline.write_preview(session.stage(play.preview), video, fps=play.fps or prior.fps)
         session.output("preview", play.preview)
     if play.ply_dir is not None:
-        pipeline.write_ply_frames(session.staged.folder(play.ply_dir, pipeline.PLY_FRAME_NAME), lifted.gaussians,
+        pipeline.write_ply_frames(session.staged.folder(play.ply_dir, PLY_FRAME_NAME), lifted.gaussians,
                                   trajectory)
         session.output("ply_dir", play.ply_dir)
     if play.splats is not None:
@@ -567,7 +577,7 @@ def transfer(prior: Annotated[Path, typer.Argument(help="SpaT prior .npz.")],
 def run(source: Annotated[Path, typer.Argument(help="Video file or folder of frames.")],
         target: Annotated[Path, typer.Argument(help="Target image (RGB/RGBA) or 3DGS .ply.")],
         output: Output, masks: Masks = None, depth: Depth = None, focal: Focal = None, parts: Parts = "1",
-        start: Start = 0, end: End = None, stride: Stride = 1, max_side: MaxSide = pipeline.DEFAULT_MAX_SIDE,
+        start: Start = 0, end: End = None, stride: Stride = 1, max_side: MaxSide = DEFAULT_MAX_SIDE,
         max_pixels: MaxPixels = DEFAULT_MAX_PIXELS, smooth: Smooth = 1.0, plot: Plot = None,
         source_point: SourcePoint = None, source_box: SourceBox = None, source_exclude: SourceExclude = None,
         save_masks: SaveMasks = None, recover_frames: RecoverFrames = True, joints: Joints = True,
@@ -584,6 +594,8 @@ def run(source: Annotated[Path, typer.Argument(help="Video file or folder of fra
         preview: Preview = None, splats: Splats = None, side_by_side: SideBySide = None, report: Report = None,
         quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False, config: Config = None) -> None:
     """Extract the source's motion and transfer it onto the target in one go."""
+    from . import pipeline
+
     play = _playback(output, target, frames, speed, loop, reverse, rotation_scale, translation_scale, fps,
                      background, size, camera, camera_amount, camera_path, ply_dir, target_mask,
                      _prompt("target", target_point, target_box, target_exclude), target_depth, shape,
@@ -628,8 +640,10 @@ def reconstruct(source: Annotated[Path, typer.Argument(help="Video file or folde
                 quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False,
                 config: Config = None) -> None:
     """Reconstruct the source object as 3D Gaussians at frame 0, with each Gaussian's part."""
+    from . import pipeline
     from .io import write_ply
     from .reconstruct import ReconstructOptions
+    from .source import ExtractOptions
 
     _output_file(output, ".ply", "--output")
     if not 1 <= iterations <= 1_000_000:
@@ -669,7 +683,7 @@ def reconstruct(source: Annotated[Path, typer.Argument(help="Video file or folde
 @app.command("eval-self")
 def eval_self_cmd(source: Annotated[Path, typer.Argument(help="Video file or folder of frames.")],
                   output: Annotated[Path, typer.Option("--output", "-o", help="Output folder.")],
-                  masks: Masks = None, parts: Parts = "1", max_side: MaxSide = pipeline.DEFAULT_MAX_SIDE,
+                  masks: Masks = None, parts: Parts = "1", max_side: MaxSide = DEFAULT_MAX_SIDE,
                   target: Annotated[str, typer.Option(
                       help="What is moved: 'reconstruction' (the object fitted to the whole video) or 'frame0' "
                            "(source frame 0 lifted alone, the paper's protocol).")] = "reconstruction",
@@ -718,7 +732,7 @@ def eval_self_cmd(source: Annotated[Path, typer.Argument(help="Video file or fol
 @app.command("eval")
 def eval_cmd(source: Annotated[Path, typer.Argument(help="Source video file or folder of frames.")],
              result: Annotated[Path, typer.Argument(help="Transferred video, e.g. from `marionette run`.")],
-             masks: Masks = None, max_side: MaxSide = pipeline.DEFAULT_MAX_SIDE,
+             masks: Masks = None, max_side: MaxSide = DEFAULT_MAX_SIDE,
              speed: Annotated[Optional[float], typer.Option(
                  help="The --speed the result was made with (default 1).")] = None,
              loop: Annotated[Optional[str], typer.Option(
@@ -816,6 +830,8 @@ def render_cmd(scene: Annotated[Path, typer.Argument(help="3DGS .ply file.")],
                output: Output, background: Background = "1,1,1", quiet: Quiet = False, verbose: Verbose = False,
                json_summary: Json = False, config: Config = None) -> None:
     """Render a 3DGS .ply from a camera to a PNG (a warning when nothing of it is in view)."""
+    from .render import render
+
     bg = _parsed("--background", parse_background, background)
     if output.suffix.lower() not in (".png", ".jpg", ".jpeg"):
         raise InputError(f"unsupported image output {output.name!r}: use .png or .jpg")

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-import numba
 import numpy as np
 
 from .errors import InputError
@@ -127,8 +126,9 @@ class Gaussians:
             raise InputError(f"turned: labels must be ({len(self)},) indices into {len(turns)} quaternions")
         from .geometry import quaternion_to_matrix
         from .render.sh import rotate_sh  # imported here: the renderer imports this module
+        from .render.turn import turn_quaternions
 
-        return replace(self, quats=_turn(self.quats, turns, labels),
+        return replace(self, quats=turn_quaternions(self.quats, turns, labels),
                        sh=rotate_sh(self.sh, quaternion_to_matrix(turns), labels))
 
     @staticmethod
@@ -160,25 +160,3 @@ class Gaussians:
             quats = np.tile(np.array([1, 0, 0, 0], np.float32), (n, 1))
         return Gaussians(means, quats, np.log(scales), np.log(op / (1 - op)),
                          rgb_to_sh(rgb)[:, None, :])
-
-
-@numba.njit(parallel=True, cache=True)
-def _turn(own, turns, labels):
-    """Quaternions own (N, 4) float32, normalised, pre-multiplied by ``turns[labels[i]]`` (P, 4) float64,
-    ``w >= 0`` (as :func:`~marionette.geometry.matrix_to_quaternion` gives) → (N, 4) float32.
-
-    What ``quaternion_multiply(turns[labels], own / |own|)`` computes, without its (N, 4) float64
-    temporaries: a frame of a moving target turns every Gaussian.
-    """
-    out = np.empty(own.shape, np.float32)
-    for i in numba.prange(own.shape[0]):
-        w, x, y, z = np.float64(own[i, 0]), np.float64(own[i, 1]), np.float64(own[i, 2]), np.float64(own[i, 3])
-        norm = max(np.sqrt(w * w + x * x + y * y + z * z), 1e-300)
-        w, x, y, z = w / norm, x / norm, y / norm, z / norm
-        a = turns[labels[i]]
-        product = (a[0] * w - a[1] * x - a[2] * y - a[3] * z, a[0] * x + a[1] * w + a[2] * z - a[3] * y,
-                   a[0] * y - a[1] * z + a[2] * w + a[3] * x, a[0] * z + a[1] * y - a[2] * x + a[3] * w)
-        sign = -1.0 if product[0] < 0 else 1.0
-        for k in range(4):
-            out[i, k] = np.float32(sign * product[k])
-    return out

@@ -29,7 +29,8 @@ from .io import (
     write_video,
 )
 from .io.atomic import atomic_folder
-from .io.video import DEFAULT_MAX_PIXELS, open_video, write_masks
+from .io.ply import PLY_FRAME_NAME
+from .io.video import DEFAULT_MAX_PIXELS, DEFAULT_MAX_SIDE, open_video, write_masks
 from .prior import SpatPrior
 from .progress import Reporter
 from .render import render
@@ -52,12 +53,6 @@ __all__ = ["extract", "source_masks", "reconstruct",
            "fit_view", "scene_compositor", "frames_outside", "render_frames", "render_video", "write_ply_frames",
            "side_by_side", "write_side_by_side", "write_preview", "source_intrinsics", "DEFAULT_MAX_SIDE",
            "PLY_FRAME_NAME"]
-
-#: Names of the per-frame files of :func:`write_ply_frames` (a folder of only these may be replaced).
-PLY_FRAME_NAME = r"\d{5,}\.ply"
-
-#: Long side above which source frames are downscaled (intrinsics follow).
-DEFAULT_MAX_SIDE = 960
 
 
 def source_intrinsics(width: int, height: int, focal: float | None = None) -> np.ndarray:

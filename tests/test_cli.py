@@ -16,6 +16,8 @@ from marionette.geometry import axis_angle_to_matrix, make_transform
 from marionette.io import read_ply, read_prior, read_video, write_ply
 from marionette.prior import SpatPrior
 
+pytestmark = pytest.mark.heavy
+
 
 def one_error_line(capsys):
     err = capsys.readouterr().err.strip().splitlines()
@@ -138,6 +140,16 @@ def test_no_command_prints_the_help_and_exits_2_as_click_does(command):
     assert proc.returncode == 2, proc.stderr
     assert "Usage: marionette" in proc.stdout and "extract" in proc.stdout
     assert proc.stderr == ""  # no traceback, and no error line: the help says it all
+
+
+def test_the_help_loads_no_stage_of_the_method():
+    """The command line imports a stage (and numba, SciPy, ONNX Runtime) when a command runs it, not for --help."""
+    code = ("import sys\nfrom marionette.cli import main\ncode = main(['extract', '--help'])\n"
+            "print(code, sorted(m for m in ('numba', 'scipy', 'onnxruntime', 'marionette.pipeline', "
+            "'marionette.source') if m in sys.modules))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.splitlines()[-1] == "0 []"
 
 
 def test_render_warns_when_nothing_of_the_scene_is_in_view(tmp_path, capsys):

@@ -64,3 +64,6 @@ def test_api_names_are_the_functions_not_the_subpackages():
 
     assert callable(mm.transfer) and callable(mm.render) and callable(mm.lift_target)
     assert set(mm.__all__) <= set(dir(mm))
+    assert all(getattr(mm, name) is not None for name in mm.__all__)  # every name resolves
+    with pytest.raises(AttributeError, match="no attribute 'extrakt'"):
+        mm.extrakt

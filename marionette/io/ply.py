@@ -24,7 +24,11 @@ from ..errors import InputError
 from ..gaussians import Gaussians
 from .atomic import atomic_path
 
-__all__ = ["read_ply", "write_ply", "read_ply_property"]
+__all__ = ["read_ply", "write_ply", "read_ply_property", "PLY_FRAME_NAME"]
+
+#: Names of the per-frame files of :func:`marionette.pipeline.write_ply_frames` (a folder of only these may be
+#: replaced).
+PLY_FRAME_NAME = r"\d{5,}\.ply"
 
 _REQUIRED = ("x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity",
              "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3")

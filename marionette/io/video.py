@@ -42,6 +42,8 @@ VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".webm", ".m4v", ".mpg", ".mpe
 #: (masks, tracks): 2**29 is 1036 frames of 960 x 540, 1310 of 854 x 480, and
 #: keeps ``marionette extract`` within 2 GB (docs/benchmarks/memory.md).
 DEFAULT_MAX_PIXELS = 2**29
+#: Long side above which source frames are downscaled (intrinsics follow).
+DEFAULT_MAX_SIDE = 960
 #: Shortest frame side :func:`open_video` downscales to.
 _MIN_SIDE = 16
 #: Most pixels of one image :func:`read_image` decodes (a guard against

@@ -16,7 +16,6 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..errors import InputError
-from ..source.hinge import hinge_poses
 
 __all__ = ["Hinge", "hinges_from_metadata", "check_hinges", "snap_to_hinges"]
 
@@ -72,6 +71,9 @@ def snap_to_hinges(poses: np.ndarray, hinges: Sequence[Hinge]) -> np.ndarray:
     axis closest to it (the rotation vector's component along the axis), so a
     pose that drifted off the axis (smoothed, say) starts the refinement on it.
     """
+    # Imported here: marionette.source imports the alignment (to recover lost frames), which imports this module.
+    from ..source.hinge import hinge_poses
+
     out = np.array(poses, dtype=np.float64)
     for h in hinges:
         relative = np.linalg.inv(out[h.body]) @ out[h.part]  # (T, 4, 4)
