@@ -3,7 +3,9 @@
 Every command prints one ``error: …`` line on stderr and exits with code 2 on
 bad input or usage, and writes its outputs as one unit: all under temporary
 names, put in place together when the command succeeds
-(:class:`~marionette.io.atomic.StagedOutputs`).
+(:class:`~marionette.io.atomic.StagedOutputs`). A command imports the stages it
+runs when it runs (not at start-up), so that ``--help`` and a mistyped option
+answer at once.
 """
 
 from __future__ import annotations
