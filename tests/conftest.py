@@ -79,8 +79,8 @@ def _head_start(compile_kernels: Callable[[], None]) -> None:
 def _share_the_compiling(worker: int, shared: Path) -> None:
     """On a cold numba cache (a fresh clone) every worker would compile every kernel, ~80 s each on two cores.
 
-    Even workers compile the rasterizer, forward then backward (~45 s on two cores); odd ones the extraction's
-    kernels (~25 s), each under its share's lock, then wait for the others' locks so that the kernels they did
+    Even workers compile the rasterizer, forward then backward (35-50 s on two cores); odd ones the extraction's
+    kernels (25-30 s), each under its share's lock, then wait for the others' locks so that the kernels they did
     not compile are read from the cache. The backward pass, which few tests use, is not waited for: an odd worker
     starts its tests once the forward kernels are in the cache, and its first backward pass waits for them
     (:func:`_backward_waits_for`). A warm cache makes all this a second's work."""
@@ -90,8 +90,9 @@ def _share_the_compiling(worker: int, shared: Path) -> None:
             with _held(forward, fcntl.LOCK_EX):
                 _head_start(_compile_forward)
             _head_start(_compile_backward)
-        with _held(extraction, fcntl.LOCK_SH):
-            return
+        with _held(extraction, fcntl.LOCK_SH):  # until the extraction's kernels are in the cache
+            pass
+        return
     with _held(extraction, fcntl.LOCK_EX):
         _head_start(_compile_extraction)
     with _held(forward, fcntl.LOCK_SH):
