@@ -27,7 +27,7 @@ import typer
 from .camera import MAX_IMAGE_SIDE, Camera
 from .errors import InputError
 from .geometry import rotation_angle_deg
-from .io import read_ply, read_prior, write_image, write_prior, write_splat_animation
+from .io import read_ply, read_prior, write_image, write_ply, write_prior, write_splat_animation
 from .io.atomic import StagedOutputs, check_output_dir, check_output_folder, check_output_path, staged_outputs
 from .io.ply import PLY_FRAME_NAME
 from .io.video import DEFAULT_MAX_PIXELS, DEFAULT_MAX_SIDE, MASK_FRAME_NAME
@@ -643,7 +643,6 @@ def reconstruct(source: Annotated[Path, typer.Argument(help="Video file or folde
                 config: Config = None) -> None:
     """Reconstruct the source object as 3D Gaussians at frame 0, with each Gaussian's part."""
     from . import pipeline
-    from .io import write_ply
     from .reconstruct import ReconstructOptions
     from .source import ExtractOptions
 

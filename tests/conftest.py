@@ -31,13 +31,10 @@ def _small_view():
 
 
 def _compile_forward() -> None:
-    """The rasterizer's forward kernels (SH colours and turns included)."""
-    from marionette.render import render
+    """The rasterizer's forward kernels (SH colours and turns included; ``render`` runs the same ones)."""
     from marionette.render.backward import render_with_grad
 
-    gaussians, camera = _small_view()
-    render(gaussians, camera)
-    render_with_grad(gaussians, camera)
+    render_with_grad(*_small_view())
 
 
 def _compile_backward() -> None:
