@@ -265,6 +265,10 @@ RecoverFrames = Annotated[bool, typer.Option(
 Joints = Annotated[bool, typer.Option(
     help="Fit a part that turns about a fixed axis of the part that turns least (a lid on a box, a door on its "
          "frame) as a hinge on it, when that explains its tracks as well as a free motion (multi-part extraction).")]
+StrictTracks = Annotated[bool, typer.Option(
+    help="End a track where its window stops matching the one it was seeded in (no drift) instead of anchoring "
+         "it again: poses several times closer on clean footage; on compressed or blurred clips tracks grow short "
+         "and parts and hard frames suffer.")]
 SourcePoint = Annotated[Optional[list[str]], typer.Option(
     help="A point X,Y on the object in the first source frame used, in its original pixels (repeatable): the "
          "masks follow that object instead of the automatic choice.")]
@@ -299,7 +303,7 @@ def _check_max_side(max_side: int) -> None:
 
 def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, stride: int, max_side: int,
              max_pixels: int, smooth: float, plot, prompt: Prompt | None, save_masks: Path | None, session: _Session,
-             recover_frames: bool = True, joints: bool = True):
+             recover_frames: bool = True, joints: bool = True, strict_tracks: bool = False):
     """Shared by ``extract`` and ``run``: check the options, extract, draw the plot."""
     from . import pipeline
     from .plot import plot_prior
@@ -312,7 +316,8 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
     if not (np.isfinite(smooth) and 0 <= smooth <= 100):
         raise InputError(f"--smooth must be within 0..100, got {smooth}")
     _output_file(plot, ".png", "--plot")
-    options = ExtractOptions(parts=parts_value, smoothing=smooth, recover_frames=recover_frames, joints=joints)
+    options = ExtractOptions(parts=parts_value, smoothing=smooth, recover_frames=recover_frames, joints=joints,
+                             strict_tracks=strict_tracks)
     prior = pipeline.extract(source, masks=masks, depth=depth, focal=focal, max_side=max_side,
                              max_pixels=max_pixels, start=start, end=end, stride=stride, options=options,
                              prompt=prompt, reporter=session.reporter,
@@ -345,13 +350,14 @@ def extract(source: Annotated[Path, typer.Argument(help="Video file or folder of
             max_pixels: MaxPixels = DEFAULT_MAX_PIXELS, smooth: Smooth = 1.0, plot: Plot = None,
             source_point: SourcePoint = None, source_box: SourceBox = None, source_exclude: SourceExclude = None,
             save_masks: SaveMasks = None, recover_frames: RecoverFrames = True, joints: Joints = True,
+            strict_tracks: StrictTracks = False,
             quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False, config: Config = None) -> None:
     """Extract the SpaT prior (per-part rigid motion) from a source video."""
     _output_file(output, ".npz", "--output")
     prompt = _prompt("source", source_point, source_box, source_exclude)
     with _session("extract", quiet, verbose, json_summary) as session:
         prior = _extract(source, masks, depth, focal, parts, start, end, stride, max_side, max_pixels, smooth, plot,
-                         prompt, save_masks, session, recover_frames, joints)
+                         prompt, save_masks, session, recover_frames, joints, strict_tracks)
         write_prior(session.stage(output), prior)
         session.output("prior", output)
 
@@ -583,7 +589,7 @@ def run(source: Annotated[Path, typer.Argument(help="Video file or folder of fra
         max_pixels: MaxPixels = DEFAULT_MAX_PIXELS, smooth: Smooth = 1.0, plot: Plot = None,
         source_point: SourcePoint = None, source_box: SourceBox = None, source_exclude: SourceExclude = None,
         save_masks: SaveMasks = None, recover_frames: RecoverFrames = True, joints: Joints = True,
-        frames: Frames = None,
+        strict_tracks: StrictTracks = False, frames: Frames = None,
         speed: Speed = 1.0, loop: Loop = "hold",
         reverse: Reverse = False,
         rotation_scale: RotationScale = 1.0, translation_scale: TranslationScale = 1.0, fps: Fps = None,
@@ -608,7 +614,7 @@ def run(source: Annotated[Path, typer.Argument(help="Video file or folder of fra
     _output_file(report, ".json", "--report")
     with _session("run", quiet, verbose, json_summary) as session:
         prior = _extract(source, masks, depth, focal, parts, start, end, stride, max_side, max_pixels, smooth, plot,
-                         prompt, save_masks, session, recover_frames, joints)
+                         prompt, save_masks, session, recover_frames, joints, strict_tracks)
         trajectory, video = _transfer_and_render(prior, target, output, play, session)
         if side_by_side is not None:
             times = source_times(trajectory.num_frames, prior.num_frames - 1, speed=speed, loop=loop, reverse=reverse)

@@ -202,10 +202,11 @@ def test_extract_and_run_on_a_synthetic_video(tmp_path, target_png):
     assert prior.num_frames == 10 and prior.num_parts == 1
     assert cv2.imread(str(tmp_path / "p.png")).shape[0] > 100
     assert main(["extract", str(frames), "--masks", str(masks), "-o", str(tmp_path / "q.npz"), "-q",
-                 "--parts", "1", "--start", "2", "--stride", "2", "--no-recover-frames"]) == 0
+                 "--parts", "1", "--start", "2", "--stride", "2", "--no-recover-frames", "--strict-tracks"]) == 0
     part = read_prior(tmp_path / "q.npz")
     assert part.num_frames == 4 and part.fps == pytest.approx(prior.fps / 2)
     assert prior.metadata["options"]["recover_frames"] and not part.metadata["options"]["recover_frames"]
+    assert part.metadata["options"]["strict_tracks"] and not prior.metadata["options"]["strict_tracks"]
     assert main(["run", str(frames), str(target_png), "--masks", str(masks), "-o", str(tmp_path / "r.mp4"),
                  "-q"]) == 0
     assert read_video(tmp_path / "r.mp4").frames.shape[0] == 10

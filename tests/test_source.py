@@ -17,6 +17,7 @@ from marionette.source.rigid import ShapePrior, carved_centroid, fit_rigid
 from marionette.source.tracks import (
     _align_affine,
     _align_affine_numpy,
+    _noise_level,
     _normalise,
     _refine_masked,
     _refine_masked_numpy,
@@ -156,6 +157,40 @@ def test_tracks_do_not_drift_on_a_turning_texture():
     assert np.median(err) < 0.05 and err.max() < 0.3
 
 
+def test_strict_tracks_follow_a_turning_texture_without_drift():
+    turns = np.radians(np.linspace(0, 60, 21))
+    frames = np.stack([wave_texture(turn=a) for a in turns])
+    masks = np.repeat(disc(90)[None], len(turns), axis=0)
+    tr = track(frames, masks, strict=True)
+    alive = tr.visible[-1] & (tr.start == 0)
+    assert alive.sum() > 200  # a texture that only turns keeps matching its seed windows
+    p0 = tr.uv[0, alive] - [W / 2, H / 2]
+    c, s = np.cos(turns[-1]), np.sin(turns[-1])
+    err = np.linalg.norm(tr.uv[-1, alive] - (p0 @ np.array([[c, s], [-s, c]]) + [W / 2, H / 2]), axis=1)
+    assert np.median(err) < 0.05 and err.max() < 0.3
+
+
+def test_strict_tracks_end_at_a_fold_that_anchored_tracks_cross():
+    # Two surfaces meeting at a vertical seam: the left one still, the right one sliding right and brightening.
+    # A window across the seam fits no single affine warp: strict tracks there end, anchored ones go on.
+    steps = 10
+    frames = []
+    for t in range(steps):
+        left, right = wave_texture(seed=1).astype(np.float32), wave_texture((0.6 * t, 0.0), seed=2).astype(np.float32)
+        frame = np.where(np.arange(W)[None, :, None] < W // 2, left, np.clip(right * (1 + 0.03 * t), 0, 255))
+        frames.append(frame.astype(np.uint8))
+    frames = np.stack(frames)
+    masks = np.ones((steps, H, W), bool)
+    seam = lambda tr: np.abs(tr.uv[0, :, 0] - W // 2) < 6  # noqa: E731
+    far = lambda tr: np.abs(tr.uv[0, :, 0] - W // 2) > 20  # noqa: E731
+    strict, anchored = track(frames, masks, strict=True), track(frames, masks)
+    first_s, first_a = strict.start == 0, anchored.start == 0
+    survive = lambda tr, sel: tr.visible[-1, sel].mean()  # noqa: E731
+    assert survive(anchored, first_a & seam(anchored)) > 0.8
+    assert survive(strict, first_s & seam(strict)) < 0.3
+    assert survive(strict, first_s & far(strict)) > 0.8  # away from the seam, both surfaces keep their tracks
+
+
 def test_identical_frames_give_zero_motion():
     frames = np.repeat(wave_texture()[None], 5, axis=0)
     masks = np.repeat(disc(80)[None], 5, axis=0)
@@ -205,10 +240,12 @@ def test_refine_kernel_matches_numpy_twin():
     np.testing.assert_allclose(fast[inner], p0[inner] + [0.7, -0.3], atol=0.05)
 
 
-def test_affine_kernel_matches_numpy_twin():
+@pytest.mark.parametrize("photometric, gain, bias, noise", [(False, 1.0, 0.0, 0.0), (True, 1.0, 0.0, 0.0),
+                                                            (True, 0.6, 40.0, 0.0), (True, 0.6, 40.0, 2.0)])
+def test_affine_kernel_matches_numpy_twin(photometric, gain, bias, noise):
     rng = np.random.default_rng(2)
-    a = _normalise(wave_texture()[..., 0])
-    b = _normalise(wave_texture((0.7, -0.3), turn=0.1)[..., 0])
+    a = wave_texture()[..., 0].astype(np.float32)
+    b = gain * wave_texture((0.7, -0.3), turn=0.1)[..., 0].astype(np.float32) + bias  # a surface turned to the light
     mask = disc(70).astype(np.float32)
     p0 = (np.array([W / 2, H / 2]) + rng.uniform(-90, 90, (150, 2)))
     c, s = np.cos(0.1), np.sin(0.1)
@@ -216,12 +253,54 @@ def test_affine_kernel_matches_numpy_twin():
     p1 = (p0 - [W / 2, H / 2]) @ rot.T + [W / 2 + 0.7, H / 2 - 0.3]
     start = p1 + rng.uniform(-1, 1, p1.shape)
     warps = np.tile(np.eye(2), (150, 1, 1))
-    fast, slow = _align_affine(a, mask, b, p0, start, warps, 21), _align_affine_numpy(a, mask, b, p0, start, warps, 21)
-    for x, y in zip(fast, slow):  # positions, warps, residuals: the same arithmetic
+    if not photometric:  # the normalised images the default tracker aligns
+        a, b = _normalise(a.astype(np.uint8)), _normalise(b.astype(np.uint8))
+    fast = _align_affine(a, mask, b, p0, start, warps, 21, photometric=photometric, noise=noise)
+    slow = _align_affine_numpy(a, mask, b, p0, start, warps, 21, photometric=photometric, noise=noise)
+    for x, y in zip(fast, slow):  # positions, warps, residuals, gains: the same arithmetic
         np.testing.assert_allclose(x, y, atol=1e-9)
     inner = np.linalg.norm(p0 - [W / 2, H / 2], axis=1) < 55
     np.testing.assert_allclose(fast[0][inner], p1[inner], atol=0.05)
     np.testing.assert_allclose(fast[1][inner], np.broadcast_to(rot, (inner.sum(), 2, 2)), atol=0.01)
+    if photometric:
+        np.testing.assert_allclose(fast[3][inner], gain, rtol=0.05)  # bilinear sampling of a turned texture: -2 %
+        assert np.all(fast[2][inner] < 0.05)  # matched: residuals are relative to the window's contrast
+
+
+def test_alignment_residual_discounts_the_pixel_noise():
+    rng = np.random.default_rng(3)
+    clean = wave_texture()[..., 0].astype(np.float32)
+    a, b = (clean + rng.normal(0, 3.0, clean.shape).astype(np.float32) for _ in range(2))
+    mask = disc(70).astype(np.float32)
+    p0 = np.array([W / 2, H / 2]) + rng.uniform(-50, 50, (40, 2))
+    warps = np.tile(np.eye(2), (40, 1, 1))
+    raw = _align_affine(a, mask, b, p0, p0, warps, 21, photometric=True)[2]
+    discounted = _align_affine(a, mask, b, p0, p0, warps, 21, photometric=True, noise=3.0)[2]
+    assert np.median(raw) > 0.08  # the noise alone would end these tracks (limit 0.15 at 3 grey levels)...
+    assert np.median(discounted) < 0.02 and discounted.max() < 0.05  # ...but is expected, and discounted
+
+
+@pytest.mark.parametrize("sigma", [2.0, 6.0])
+def test_noise_level_of_a_smooth_image(sigma):
+    y, x = np.mgrid[0:H, 0:W]
+    smooth = 100 + 60 * np.sin(x / 40.0) * np.cos(y / 55.0)  # shading: no response to the Laplacian difference
+    grey = np.clip(smooth + np.random.default_rng(4).normal(0, sigma, smooth.shape), 0, 255).round().astype(np.uint8)
+    # Rounding to whole grey levels adds noise of 1/sqrt(12) ≈ 0.29 levels.
+    assert _noise_level(grey) == pytest.approx(np.hypot(sigma, 0.29), rel=0.1, abs=0.05)
+
+
+def test_affine_alignment_reports_a_window_that_no_longer_matches():
+    a = wave_texture()[..., 0].astype(np.float32)
+    b = wave_texture((0.0, 0.0), turn=0.0)[..., 0].astype(np.float32)
+    flat = np.full_like(b, 128.0)
+    mask = disc(70).astype(np.float32)
+    p0 = np.array([[W / 2, H / 2], [W / 2 + 20, H / 2 - 10]])
+    warps = np.tile(np.eye(2), (2, 1, 1))
+    same = _align_affine(a, mask, b, p0, p0, warps, 21, photometric=True)
+    gone = _align_affine(a, mask, flat, p0, p0, warps, 21, photometric=True)  # the texture vanished: no contrast
+    inverted = _align_affine(a, mask, 255.0 - b, p0, p0, warps, 21, photometric=True)  # contrast reversed
+    assert np.all(same[2] < 1e-3) and np.allclose(same[3], 1.0)
+    assert np.all(np.isinf(gone[2])) and np.all(np.isinf(inverted[2]))
 
 
 def test_progress_is_reported_per_frame():

@@ -84,6 +84,11 @@ class ExtractOptions:
         least (a lid on a box, a door on its frame) as a hinge on it
         (:mod:`~marionette.source.hinge`) when that explains its tracks as
         well as its free 6-DoF poses do.
+    strict_tracks : bool
+        End a track where its window stops matching its seed window instead
+        of anchoring it again (``track(..., strict=True)``): no drift, so
+        clean footage gives poses several times closer; compressed or
+        blurred clips get short tracks. Off by default.
     relief : float
         Half-thickness of the inflated shape prior relative to the mask's
         inscribed radius (1: a disc mask becomes a sphere).
@@ -108,6 +113,7 @@ class ExtractOptions:
     camera_motion: bool = True
     recover_frames: bool = True
     joints: bool = True
+    strict_tracks: bool = False
     relief: float = 1.0
     motion_threshold: float = 0.5
     rigid: RigidOptions = field(default_factory=RigidOptions)
@@ -315,7 +321,7 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
     with stages("tracking", "tracking", num_frames - 1) as progress:
         tracks = track(frames, masks, spacing=options.spacing, window=options.window, levels=options.levels,
                        fb_threshold=options.fb_threshold, reseed_every=options.reseed_every,
-                       min_eigen=options.min_eigen, progress=progress)
+                       min_eigen=options.min_eigen, strict=options.strict_tracks, progress=progress)
     whole = (_depth_shape(masks[0], depths[0], k, options.relief) if depths is not None
              else ShapePrior.inflate(masks[0], k, relief=options.relief))
     camera, camera_note, camera_model = None, "not estimated", None
