@@ -65,10 +65,10 @@ _NORM_EPS = 4.0
 _ALIGN_BLUR = 0.7
 # A track's window matches the one it is aligned against when the residual
 # is below _ANCHOR_RESIDUAL (RMS mismatch of the normalised images, where the
-# local contrast is 1) or, with ``strict``, _STRICT_RESIDUAL (of the sharp
-# grey images, over their RMS contrast, with gain, bias and the share the
-# pixel noise explains removed), the position within _ANCHOR_SHIFT pixels of
-# the chained estimate and the warp of sane area. A window that stops
+# local contrast is 1) or, with ``strict``, _STRICT_RESIDUAL (of the lightly
+# blurred grey images, over their RMS contrast, with gain, bias and the share
+# the pixel noise explains removed), the position within _ANCHOR_SHIFT pixels
+# of the chained estimate and the warp of sane area. A window that stops
 # matching straddles a crease or an occluding edge, its surface turned away,
 # or the video is blurred or compressed: the track is anchored again where it
 # is (one chained step, some drift) or, strict, ends there (re-seeding starts
@@ -648,7 +648,7 @@ def track(frames: np.ndarray, masks: np.ndarray, *, spacing: int = 6, window: in
         (masks are rarely exact at the boundary).
     refine : bool
         Refine each LK step within the mask and align against the track's
-        seed frame (no drift; the default). Off: plain pyramidal LK with
+        anchor frame (no drift; the default). Off: plain pyramidal LK with
         the forward-backward check, several times faster, for sparse
         background tracks whose drift matters less.
     strict : bool
@@ -683,12 +683,13 @@ def track(frames: np.ndarray, masks: np.ndarray, *, spacing: int = 6, window: in
     inset = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * border + 1,) * 2)
 
     def load(t: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Grey image (seeding), normalised image (chained refinement), blurred grey image (LK), float mask and
-        the lightly blurred float grey image (seed alignment) of frame t."""
+        """Grey image (seeding), normalised image (refinement), blurred grey image (LK), float mask of frame t,
+        and the image its windows are aligned on: the normalised one, or (strict) the lightly blurred grey one."""
         grey = cv2.cvtColor(frames[t], cv2.COLOR_RGB2GRAY)
         blurred = cv2.GaussianBlur(grey, (0, 0), _BLUR_SIGMA)
-        sharp = cv2.GaussianBlur(grey.astype(np.float32), (0, 0), _ALIGN_BLUR)
-        return grey, _normalise(grey), blurred, masks[t].astype(np.float32), sharp
+        normalised = _normalise(grey)
+        aligned = cv2.GaussianBlur(grey.astype(np.float32), (0, 0), _ALIGN_BLUR) if strict else normalised
+        return grey, normalised, blurred, masks[t].astype(np.float32), aligned
 
     def seeds(t: int, grey: np.ndarray, live: np.ndarray) -> np.ndarray:
         allowed = cv2.erode(masks[t].astype(np.uint8), inset).astype(bool)
@@ -696,24 +697,25 @@ def track(frames: np.ndarray, masks: np.ndarray, *, spacing: int = 6, window: in
             allowed &= _free_of_tracks(live, (h, w), spacing)
         return _grid_seeds(_texture(grey), allowed, spacing, min_eigen)
 
-    grey, prev, prev_grey, prev_mask, sharp = load(0)
-    # The pixel noise of the sharp images, which the seed alignment's residual discounts.
+    grey, prev, prev_grey, prev_mask, aligned = load(0)
+    # Strict: the pixel noise left in the aligned images (the blur's gain on white noise), which the residual
+    # discounts.
     impulse = np.zeros((9, 9), np.float32)
     impulse[4, 4] = 1.0
-    noise = _noise_level(grey) * float(np.sqrt((cv2.GaussianBlur(impulse, (0, 0), _ALIGN_BLUR) ** 2).sum()))
+    noise = (_noise_level(grey) * float(np.sqrt((cv2.GaussianBlur(impulse, (0, 0), _ALIGN_BLUR) ** 2).sum()))
+             if strict else 0.0)
     pts = seeds(0, grey, np.zeros((0, 2), np.float32))  # (N, 2) live positions
     ids = np.arange(len(pts))  # (N,) their track ids, ascending
     anchor = np.zeros(len(pts), np.int64)  # (N,) frame each live track is aligned against
     anchor_pts = pts.astype(np.float64)  # (N, 2) its position there
     warp = np.tile(np.eye(2), (len(pts), 1, 1))  # (N, 2, 2) affine from that frame's window to the current one
-    # Sharp image and mask (bool: a quarter of float32) of the anchor frames in use, when refining.
-    # Strict tracks compare the sharp grey images, discounting their noise; the others the normalised ones.
-    images = {0: (sharp if strict else prev, masks[0])} if refine else {}
+    # Aligned image and mask (bool: a quarter of float32) of the anchor frames in use, when refining.
+    images = {0: (aligned, masks[0])} if refine else {}
     limit = _STRICT_RESIDUAL if strict else _ANCHOR_RESIDUAL
     starts = [np.zeros(len(pts), np.int64)]
     history = [(ids, pts)]  # per frame: (ids, positions) of the visible tracks
     for t in range(1, num_frames):
-        grey, cur, cur_grey, cur_mask, sharp = load(t)
+        grey, cur, cur_grey, cur_mask, aligned = load(t)
         if len(pts):
             fwd, st_f, _ = cv2.calcOpticalFlowPyrLK(prev_grey, cur_grey, pts[:, None], None, **lk)
             fwd = _refine_masked(prev, cur, prev_mask, pts, fwd[:, 0], window) if refine else fwd[:, 0]
@@ -721,9 +723,8 @@ def track(frames: np.ndarray, masks: np.ndarray, *, spacing: int = 6, window: in
             for a in np.unique(anchor) if refine else ():
                 sel = np.nonzero(anchor == a)[0]
                 ref, ref_mask = images[a]
-                p, aff, res, gain = _align_affine(ref, ref_mask.astype(np.float32), sharp if strict else cur,
-                                                  anchor_pts[sel], fwd[sel], warp[sel], window, photometric=strict,
-                                                  noise=noise)
+                p, aff, res, gain = _align_affine(ref, ref_mask.astype(np.float32), aligned, anchor_pts[sel],
+                                                  fwd[sel], warp[sel], window, photometric=strict, noise=noise)
                 det = np.linalg.det(aff)
                 good = ((res < limit) & (gain < 1.0 / _MIN_GAIN) & (det > 0.25) & (det < 4.0)
                         & (np.linalg.norm(p - fwd[sel], axis=1) < _ANCHOR_SHIFT))
@@ -749,7 +750,7 @@ def track(frames: np.ndarray, masks: np.ndarray, *, spacing: int = 6, window: in
             warp = np.concatenate([warp, np.tile(np.eye(2), (len(new), 1, 1))])
             starts.append(np.full(len(new), t, np.int64))
         if refine:
-            images[t] = (sharp if strict else cur, masks[t])
+            images[t] = (aligned, masks[t])
             images = {a: images[a] for a in np.unique(anchor)}
         history.append((ids, pts.astype(np.float32)))
         prev, prev_grey, prev_mask = cur, cur_grey, cur_mask
