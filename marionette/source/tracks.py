@@ -209,6 +209,16 @@ def _noise_level(grey: np.ndarray) -> float:
     return float(np.sqrt(np.pi / 2) * np.abs(response).astype(np.float64).mean() / 6) if response.size else 0.0
 
 
+def _aligned_noise(grey: np.ndarray) -> float:
+    """Standard deviation of the pixel noise of ``grey`` (H, W) uint8 once blurred by ``_ALIGN_BLUR``.
+
+    The blur's gain on white noise is the norm of its impulse response.
+    """
+    impulse = np.zeros((9, 9), np.float32)
+    impulse[4, 4] = 1.0
+    return _noise_level(grey) * float(np.sqrt((cv2.GaussianBlur(impulse, (0, 0), _ALIGN_BLUR) ** 2).sum()))
+
+
 def _bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Sample ``image`` (H, W) at positions ``x, y`` (equal shapes) with exact bilinear weights, edges clamped.
 
@@ -470,7 +480,7 @@ def _align_affine_numpy(ref: np.ndarray, ref_mask: np.ndarray, cur: np.ndarray, 
             residual[active] = np.sqrt(np.maximum((wts * err**2).sum(1) - floor, 0.0) / contrast[active])
         else:
             err = img - template[active]
-            residual[active] = np.sqrt((wts * err**2).sum(1) / wts.sum(1))
+            residual[active] = np.sqrt((wts * err**2).sum(1) / wsum[active])
         step = np.einsum("nij,nj->ni", inv[active], np.einsum("nkj,nk->nj", sd[active], wts * err))  # (n, 6)
         inc = np.linalg.inv(np.eye(2) + step[:, :4].reshape(-1, 2, 2))
         a[active] = a[active] @ inc
@@ -698,12 +708,7 @@ def track(frames: np.ndarray, masks: np.ndarray, *, spacing: int = 6, window: in
         return _grid_seeds(_texture(grey), allowed, spacing, min_eigen)
 
     grey, prev, prev_grey, prev_mask, aligned = load(0)
-    # Strict: the pixel noise left in the aligned images (the blur's gain on white noise), which the residual
-    # discounts.
-    impulse = np.zeros((9, 9), np.float32)
-    impulse[4, 4] = 1.0
-    noise = (_noise_level(grey) * float(np.sqrt((cv2.GaussianBlur(impulse, (0, 0), _ALIGN_BLUR) ** 2).sum()))
-             if strict else 0.0)
+    noise = _aligned_noise(grey) if strict else 0.0  # what the strict residual discounts
     pts = seeds(0, grey, np.zeros((0, 2), np.float32))  # (N, 2) live positions
     ids = np.arange(len(pts))  # (N,) their track ids, ascending
     anchor = np.zeros(len(pts), np.int64)  # (N,) frame each live track is aligned against
