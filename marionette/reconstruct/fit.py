@@ -98,8 +98,8 @@ class ReconstructOptions:
         Adam steps of the log-scales, opacity logits, SH DC coefficients, quaternions. The steps of
         the centres, log-scales, opacities and colours are twice, twice, four and two times those
         first tuned on the synthetic scenes (since 2026-12-05): in 600 steps the real clips of Table 1
-        come out sharper (eval-self LPIPS car-turn 0.041 -> 0.030, car-shadow 0.020 -> 0.015,
-        train 0.084 -> 0.062), while the synthetic scenes' held-out masked PSNR moves by -1.3 to
+        come out sharper (LPIPS car-turn 0.042 -> 0.032, car-shadow 0.019 -> 0.015, train 0.082 ->
+        0.062; ``benchmarks/bench_table1.py``), while the synthetic scenes' held-out masked PSNR moves by -1.3 to
         +2.0 dB (``benchmarks/bench_reconstruct.py``, all still above 34 dB).
     ssim_weight : float
         ``λ`` of the D-SSIM term (3DGS uses 0.2). Off by default: at 0.2 a step costs ~10 % more;
