@@ -561,9 +561,9 @@ def _align_affine_kernel(ref, gx_img, gy_img, ref_mask, cur, p_ref, p_init, a_in
         a00, a01, a10, a11 = a_init[n, 0, 0], a_init[n, 0, 1], a_init[n, 1, 0], a_init[n, 1, 1]
         img = np.empty(count)
         for _ in range(iterations):
-            for k in range(count):
+            for k in range(count):  # pixels of weight 0 count nowhere: not sampled
                 ox, oy = float(k % side - radius), float(k // side - radius)
-                img[k] = _sample(cur, qx + a00 * ox + a01 * oy, qy + a10 * ox + a11 * oy)
+                img[k] = 0.0 if wts[k] == 0.0 else _sample(cur, qx + a00 * ox + a01 * oy, qy + a10 * ox + a11 * oy)
             g = 1.0
             if photometric:
                 isum = 0.0
