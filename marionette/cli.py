@@ -642,7 +642,8 @@ def reconstruct(source: Annotated[Path, typer.Argument(help="Video file or folde
                 focal: Focal = None, parts: Parts = "1", start: Start = 0, end: End = None,
                 stride: Annotated[int, typer.Option(
                     help="Fit every N-th frame (the others are left out, e.g. to test the result).")] = 1,
-                iterations: Annotated[int, typer.Option(help="Optimisation steps (one frame each).")] = 600,
+                iterations: Annotated[int, typer.Option(
+                    help="Optimisation steps (one frame each; the first 60 % at half resolution).")] = 1000,
                 max_side: Annotated[int, typer.Option(
                     help="Long side of the frames the fit works on (before cropping to the object).")] = 960,
                 quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False,
@@ -695,7 +696,8 @@ def eval_self_cmd(source: Annotated[Path, typer.Argument(help="Video file or fol
                       help="What is moved: 'reconstruction' (the object fitted to the whole video) or 'frame0' "
                            "(source frame 0 lifted alone, the paper's protocol).")] = "reconstruction",
                   iterations: Annotated[Optional[int], typer.Option(
-                      help="Optimisation steps of the reconstruction (one frame each; default 600).")] = None,
+                      help="Optimisation steps of the reconstruction (one frame each, the first 60 % at half "
+                           "resolution; default 1000).")] = None,
                   source_point: SourcePoint = None, source_box: SourceBox = None,
                   source_exclude: SourceExclude = None, save_masks: SaveMasks = None,
                   quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False,
