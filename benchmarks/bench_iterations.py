@@ -1,5 +1,6 @@
-"""Table 1's reconstruction row against the number of fitting iterations: what the default (600 Adam steps,
-one frame each) leaves on the table, and what the paper's SSIM and LPIPS cost on two CPU cores.
+"""Table 1's reconstruction row against the number of fitting iterations: what the default (900 Adam steps,
+one frame each, the first 600 at half resolution) leaves on the table, and what the paper's SSIM and LPIPS
+cost on two CPU cores.
 
 ``eval_self`` (the protocol of ``bench_table1.py``, target ``reconstruction``) on one clip with
 ``ReconstructOptions(iterations=N)`` for each N (and, with ``--ssim-weights``, each weight of the D-SSIM term;

@@ -120,13 +120,18 @@ def light_text(light: dict | None) -> str:
 
 
 def write_report(rows: list[dict], frames: int, size: tuple[int, int]) -> None:
+    from marionette.reconstruct import ReconstructOptions
+
+    defaults = ReconstructOptions()
     lines = [
         "# Reconstruction benchmark",
         "",
         f"Produced by `flock /tmp/marionette-bench.lock python benchmarks/bench_reconstruct.py --frames {frames} "
         f"--size {size[0]}x{size[1]}`: each synthetic scene (`make_scene`, seed 0, {frames} frames at "
         f"{size[0]}x{size[1]}) reconstructed from its even frames with its exact poses as the prior and the default "
-        "`ReconstructOptions` (600 iterations, working long side 960 px before cropping to the object, so the "
+        f"`ReconstructOptions` ({defaults.iterations} iterations, the first "
+        f"{round(defaults.coarse_fraction * defaults.iterations)} at half "
+        "resolution, working long side 960 px before cropping to the object, so the "
         "frames' own size); the odd frames are held out. Masked PSNR: render on white against the frame masked "
         "onto white, over the object's pixels, mean over frames. *Lift*: the frame-0 silhouette lift alone (the "
         "baseline). Time: the `reconstruct_object` call; peak memory: `ru_maxrss` of the scene's own process. "

@@ -643,7 +643,7 @@ def reconstruct(source: Annotated[Path, typer.Argument(help="Video file or folde
                 stride: Annotated[int, typer.Option(
                     help="Fit every N-th frame (the others are left out, e.g. to test the result).")] = 1,
                 iterations: Annotated[int, typer.Option(
-                    help="Optimisation steps (one frame each; the first 60 % at half resolution).")] = 1000,
+                    help="Optimisation steps (one frame each; the first two thirds at half resolution).")] = 900,
                 max_side: Annotated[int, typer.Option(
                     help="Long side of the frames the fit works on (before cropping to the object).")] = 960,
                 quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False,
@@ -696,8 +696,8 @@ def eval_self_cmd(source: Annotated[Path, typer.Argument(help="Video file or fol
                       help="What is moved: 'reconstruction' (the object fitted to the whole video) or 'frame0' "
                            "(source frame 0 lifted alone, the paper's protocol).")] = "reconstruction",
                   iterations: Annotated[Optional[int], typer.Option(
-                      help="Optimisation steps of the reconstruction (one frame each, the first 60 % at half "
-                           "resolution; default 1000).")] = None,
+                      help="Optimisation steps of the reconstruction (one frame each, the first two thirds at "
+                           "half resolution; default 900).")] = None,
                   source_point: SourcePoint = None, source_box: SourceBox = None,
                   source_exclude: SourceExclude = None, save_masks: SaveMasks = None,
                   quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False,

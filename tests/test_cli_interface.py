@@ -286,3 +286,16 @@ def test_a_world_motion_that_leaves_the_view_is_flagged(tmp_path, target_png, ca
         assert main(["transfer", str(tmp_path / "p.npz"), str(target_png), "-o", str(tmp_path / f"{motion}.mp4"),
                      "--motion", motion]) == 0
         assert ("leaves the photo's view" in capsys.readouterr().err) == flagged
+
+
+def test_reconstruct_command_defaults_are_the_library_defaults():
+    from typer.main import get_command
+
+    from marionette.cli import app
+    from marionette.reconstruct import ReconstructOptions
+
+    params = {p.name: p for p in get_command(app).commands["reconstruct"].params}
+    assert params["iterations"].default == ReconstructOptions().iterations
+    assert params["max_side"].default == ReconstructOptions().max_side
+    eval_help = {p.name: p for p in get_command(app).commands["eval-self"].params}["iterations"].help
+    assert f"default {ReconstructOptions().iterations}" in eval_help

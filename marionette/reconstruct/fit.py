@@ -80,10 +80,11 @@ class ReconstructOptions:
     coarse_fraction : float
         Share of the iterations fitted to the frames at half the working resolution first (a quarter
         of the pixels per step), before the rest at full resolution. The default, 600 such steps
-        (densification ends with them) and 400 at full resolution, costs 15 % more than 600 steps all
-        at full resolution and fits car-turn (Table 1) better than 800 of them: SSIM 0.9722 -> 0.9749
-        and LPIPS 0.030 -> 0.025 (800 steps: 0.9738 and 0.028, for 28.6 s against 27.9 s; codec left
-        out, ``benchmarks/bench_iterations.py`` for the figures with it).
+        (densification ends within them) and 300 at full resolution, takes about the time of 600 steps
+        all at full resolution and fits car-turn (Table 1) as well as 800 of them: SSIM 0.9722 -> 0.9744
+        and LPIPS 0.030 -> 0.027 (800 steps: 0.9738 and 0.028; codec left out). 400 steps at full
+        resolution after the 600 gain another 0.002 LPIPS for 10-25 % more time, which the 40 s budget
+        of a 50-frame clip does not leave (``benchmarks/bench_reconstruct.py``).
     max_side : int
         Long side of the frames the fit works on, before cropping (intrinsics follow). The
         default is the size frames are read at, so a 480p clip is fitted at its own resolution:
@@ -139,8 +140,8 @@ class ReconstructOptions:
         Seeds the frame order and the samples of splits and subsampling.
     """
 
-    iterations: int = 1000
-    coarse_fraction: float = 0.6
+    iterations: int = 900
+    coarse_fraction: float = 2 / 3
     max_side: int = 960
     init_frames: int = 4
     init_cells: int = 2500
