@@ -9,7 +9,8 @@ PSNR, SSIM, LPIPS over whole frames as Table 1 reports them, compared with the p
 decimals, and the wall time of the whole evaluation. Writes ``docs/benchmarks/iterations.md`` (or ``--doc``).
 
     flock /tmp/marionette-bench.lock python benchmarks/bench_iterations.py \
-        [--clip car-turn] [--iterations 600,2400,4800] [--ssim-weights 0,0.2 --doc docs/benchmarks/ssim_loss.md]
+        [--clip car-turn] [--iterations 900,2400] [--coarse-fractions 0,0.6667]
+        [--ssim-weights 0,0.2 --doc docs/benchmarks/ssim_loss.md]
         [--coarse-fractions 0,0.5 --doc docs/benchmarks/coarse_to_fine.md]
 """
 
@@ -35,7 +36,7 @@ def main() -> None:
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--clip", default="car-turn", choices=[n for n, c in table1.CASES.items() if c[4]])
-    parser.add_argument("--iterations", default="600,2400,4800")
+    parser.add_argument("--iterations", default="900,2400")
     parser.add_argument("--ssim-weights", default=None,
                         help="comma-separated ssim_weight values (default: the option's default only)")
     parser.add_argument("--coarse-fractions", default=None,

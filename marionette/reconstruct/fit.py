@@ -84,7 +84,8 @@ class ReconstructOptions:
         all at full resolution and fits car-turn (Table 1) as well as 800 of them: SSIM 0.9722 -> 0.9744
         and LPIPS 0.030 -> 0.027 (800 steps: 0.9738 and 0.028; codec left out). 400 steps at full
         resolution after the 600 gain another 0.002 LPIPS for 10-25 % more time, which the 40 s budget
-        of a 50-frame clip does not leave (``benchmarks/bench_reconstruct.py``).
+        of a 50-frame clip does not leave. The sharp synthetic scenes lose a little (held-out masked
+        PSNR -1.7 to +0.1 dB, all above 33 dB; ``benchmarks/bench_reconstruct.py``).
     max_side : int
         Long side of the frames the fit works on, before cropping (intrinsics follow). The
         default is the size frames are read at, so a 480p clip is fitted at its own resolution:
