@@ -675,10 +675,11 @@ def reconstruct(source: Annotated[Path, typer.Argument(help="Video file or folde
                                frames_fitted=len(result.frames_used), frames=used.num_frames,
                                loss_initial=round(losses["initial"], 5), loss_final=round(losses["final"], 5))
         session.reporter.detail(f"  loss at start: {losses['initial']:.5f} ({losses['gaussians_initial']} Gaussians)")
-        block = options.densify_every
+        block, coarse = options.densify_every, int(round(options.coarse_fraction * iterations))
         for i, value in enumerate(losses["fit"]):
-            session.reporter.detail(f"  loss over iterations {i * block + 1}-{min((i + 1) * block, iterations)}: "
-                                    f"{value:.5f}")
+            last = min((i + 1) * block, iterations)
+            where = " (half resolution)" if last <= coarse else ""
+            session.reporter.detail(f"  loss over iterations {i * block + 1}-{last}{where}: {value:.5f}")
         session.reporter.detail(f"  loss at end: {losses['final']:.5f} ({losses['gaussians_final']} Gaussians)")
         if result.shading is not None:
             light = result.shading.lighting

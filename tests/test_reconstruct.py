@@ -213,3 +213,14 @@ def test_fit_gradients_of_the_view_dependent_colours_match_finite_differences(ss
     analytic = float(np.sum(grads["rest"] * direction))
     assert abs(numeric) > 1e-4  # the colours' direction terms do move the loss
     assert analytic == pytest.approx(numeric, rel=0.03)
+
+
+def test_cli_verbose_prints_the_loss_per_block_and_which_were_at_half_resolution(source_dir, tmp_path, capsys):
+    code = cli.main(["reconstruct", str(source_dir / "frames"), "--masks", str(source_dir / "masks"), "--prior",
+                     str(source_dir / "prior.npz"), "--iterations", "300", "-o", str(tmp_path / "o.ply"), "-v"])
+    assert code == 0
+    printed = capsys.readouterr()
+    lines = [line.strip() for line in (printed.out + printed.err).splitlines() if "loss over iterations" in line]
+    assert [line.split(":")[0] for line in lines] == [  # the first two thirds at half resolution
+        "loss over iterations 1-100 (half resolution)", "loss over iterations 101-200 (half resolution)",
+        "loss over iterations 201-300"]
