@@ -56,7 +56,7 @@ def fit_steps() -> str:
     from marionette.reconstruct import ReconstructOptions
 
     options = ReconstructOptions()
-    coarse = round(options.coarse_fraction * options.iterations)
+    coarse = options.coarse_steps
     return f"{options.iterations} Adam steps" + (f" (the first {coarse} at half resolution)" if coarse else "")
 
 

@@ -675,7 +675,7 @@ def reconstruct(source: Annotated[Path, typer.Argument(help="Video file or folde
                                frames_fitted=len(result.frames_used), frames=used.num_frames,
                                loss_initial=round(losses["initial"], 5), loss_final=round(losses["final"], 5))
         session.reporter.detail(f"  loss at start: {losses['initial']:.5f} ({losses['gaussians_initial']} Gaussians)")
-        block, coarse = options.densify_every, int(round(options.coarse_fraction * iterations))
+        block, coarse = options.densify_every, options.coarse_steps
         for i, value in enumerate(losses["fit"]):
             last = min((i + 1) * block, iterations)
             where = " (half resolution)" if last <= coarse else ""

@@ -22,6 +22,7 @@ from ..geometry import invert_transform, matrix_to_quaternion, quaternion_multip
 from ..prior import SpatPrior
 from ..render.sh import rotate_sh
 from ..target.lift import LiftOptions, lift_image
+from .posing import per_part
 
 __all__ = ["initial_gaussians", "pose_gaussians", "part_layout"]
 
@@ -33,8 +34,7 @@ def pose_gaussians(gaussians: Gaussians, parts: np.ndarray, poses: np.ndarray) -
     renderer normalises, and the product keeps the norm); SH coefficients
     turned with them.
     """
-    rot, trans = poses[parts, :3, :3], poses[parts, :3, 3]  # (N, 3, 3), (N, 3)
-    means = np.einsum("nij,nj->ni", rot, gaussians.means.astype(np.float64)) + trans
+    means = per_part(gaussians.means, parts, poses[:, :3, :3], poses[:, :3, 3])
     q_r = matrix_to_quaternion(poses[:, :3, :3])[parts]  # (N, 4)
     quats = quaternion_multiply(q_r, gaussians.quats.astype(np.float64))
     return Gaussians(means.astype(np.float32), quats.astype(np.float32), gaussians.log_scales,
@@ -126,8 +126,8 @@ def _carve(means: np.ndarray, part: np.ndarray, masks, prior: SpatPrior, frames:
     for t in frames:
         mask = cv2.dilate(np.asarray(masks[t], np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
         h, w = mask.shape
-        pose = prior.poses[part, t]  # (N, 4, 4)
-        p = np.einsum("nij,nj->ni", pose[:, :3, :3], means.astype(np.float64)) + pose[:, :3, 3]
+        pose = prior.poses[:, t]  # (K, 4, 4)
+        p = per_part(means, part, pose[:, :3, :3], pose[:, :3, 3])
         z = p[:, 2]
         front = z > 1e-6
         u = np.rint(k[0, 0] * p[:, 0] / np.where(front, z, 1) + k[0, 2]).astype(np.int64)

@@ -166,6 +166,11 @@ class ReconstructOptions:
     lr_diffuse: float = 0.05
     seed: int = 0
 
+    @property
+    def coarse_steps(self) -> int:
+        """How many of the iterations are fitted at half resolution (the first ones)."""
+        return int(round(self.coarse_fraction * self.iterations))
+
     def check(self) -> None:
         """Raise :class:`InputError` naming the first setting out of range."""
         if isinstance(self.iterations, bool) or not isinstance(self.iterations, (int, np.integer)) \
@@ -441,7 +446,7 @@ def reconstruct_object(frames, masks, prior: SpatPrior, *, frames_used: Sequence
     rng = np.random.default_rng(options.seed)
     w, h = (int(v) for v in prior.image_size)
     scale = min(1.0, options.max_side / max(w, h))
-    coarse_steps = int(round(options.coarse_fraction * options.iterations))
+    coarse_steps = options.coarse_steps
     views, coarse = [], []
     for t in visible:  # each frame read once (a video decodes it again on every read)
         image, mask = np.asarray(frames[t]), np.asarray(masks[t], bool)

@@ -15,8 +15,7 @@ __all__ = ["per_part"]
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _per_part_kernel(rows: np.ndarray, parts: np.ndarray, matrices: np.ndarray, shift: np.ndarray,
-                     transpose: bool) -> np.ndarray:
+def _per_part_kernel(rows: np.ndarray, parts: np.ndarray, matrices: np.ndarray, shift: np.ndarray) -> np.ndarray:
     n, d = rows.shape
     out = np.empty((n, d))
     for i in range(n):
@@ -24,7 +23,7 @@ def _per_part_kernel(rows: np.ndarray, parts: np.ndarray, matrices: np.ndarray, 
         for r in range(d):
             acc = 0.0
             for c in range(d):
-                acc += (a[c, r] if transpose else a[r, c]) * rows[i, c]
+                acc += a[r, c] * rows[i, c]
             out[i, r] = acc + shift[parts[i], r]
     return out
 
@@ -46,7 +45,6 @@ def per_part(rows: np.ndarray, parts: np.ndarray, matrices: np.ndarray, shift: n
     -------
     (N, D) float64: ``matrices[parts[n]] @ rows[n] + shift[parts[n]]``.
     """
-    matrices = np.ascontiguousarray(matrices, np.float64)
+    matrices = np.ascontiguousarray(np.swapaxes(matrices, 1, 2) if transpose else matrices, np.float64)
     shift = np.zeros(matrices.shape[:2]) if shift is None else np.ascontiguousarray(shift, np.float64)
-    return _per_part_kernel(np.ascontiguousarray(rows), np.ascontiguousarray(parts, np.int64), matrices, shift,
-                            bool(transpose))
+    return _per_part_kernel(np.ascontiguousarray(rows), np.ascontiguousarray(parts, np.int64), matrices, shift)

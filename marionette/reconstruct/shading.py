@@ -24,6 +24,7 @@ import numpy as np
 from ..gaussians import Gaussians
 from ..render.sh import SH_C0
 from ..trajectory import Trajectory
+from .posing import per_part
 
 __all__ = ["Lighting", "Shading", "ShadedTrajectory", "shade_factors", "shade_sh", "shade_backward", "factor_backward",
            "tangent", "unit_rows"]
@@ -60,7 +61,7 @@ class Shading:
 
     def factors_at(self, rotations: np.ndarray, parts: np.ndarray) -> np.ndarray:
         """Shading factors (N,) float64 of the Gaussians with their parts (N,) turned by ``rotations`` (K, 3, 3)."""
-        return shade_factors(np.einsum("nij,nj->ni", rotations[parts], self.normals), self.lighting)
+        return shade_factors(per_part(self.normals, parts, rotations), self.lighting)
 
     def lit(self, gaussians: Gaussians, parts: np.ndarray, rotations: np.ndarray) -> Gaussians:
         """The Gaussians (N) at rest, coloured as they look with their parts (N,) turned by ``rotations`` (K, 3, 3)."""
