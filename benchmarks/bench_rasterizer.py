@@ -107,9 +107,7 @@ def machine_info() -> dict[str, str]:
     return {
         "CPU": cpu_name(),
         "cores (os.cpu_count)": str(os.cpu_count()),
-        "numba threads": str(numba.get_num_threads()),
-        "numba threading layer": numba.threading_layer(),
-        "OMP_WAIT_POLICY": os.environ.get("OMP_WAIT_POLICY", "(unset)"),
+        "threads (numba.get_num_threads, marionette.parallel)": str(numba.get_num_threads()),
         "numba / numpy / python": f"{numba.__version__} / {np.__version__} / {platform.python_version()}",
     }
 

@@ -74,10 +74,10 @@ def _head_start(compile_kernels: Callable[[], None]) -> None:
 
 
 def _share_the_compiling(worker: int, shared: Path) -> None:
-    """On a cold numba cache (a fresh clone) every worker would compile every kernel, ~80 s each on two cores.
+    """On a cold numba cache (a fresh clone) every worker would compile every kernel (~30 s of it each).
 
-    Even workers compile the rasterizer, forward then backward (35-50 s on two cores); odd ones the extraction's
-    kernels (25-30 s), each under its share's lock, then wait for the others' locks so that the kernels they did
+    Even workers compile the rasterizer, forward then backward (~16 s); odd ones the extraction's kernels
+    (~14 s), each under its share's lock, then wait for the others' locks so that the kernels they did
     not compile are read from the cache. The backward pass, which few tests use, is not waited for: an odd worker
     starts its tests once the forward kernels are in the cache, and its first backward pass waits for them
     (:func:`_backward_waits_for`). A warm cache makes all this a second's work."""

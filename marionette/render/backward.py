@@ -81,9 +81,27 @@ import numpy as np
 from ..camera import Camera
 from ..errors import InputError
 from ..gaussians import Gaussians
+from ..parallel import CHUNK, chunks, parallel_for
 from .rasterizer import (
-    _B, _CA, _CB, _CC, _CHUNK, _G, _OPACITY, _R, TILE, RenderOutput, _check_background, _direction_limits,
-    _exp_clamped, _forward, _Frame, _rotation, _screen_covariance, _splat, _splat_row, _tile_origin,
+    _B,
+    _CA,
+    _CB,
+    _CC,
+    _G,
+    _OPACITY,
+    _R,
+    TILE,
+    RenderOutput,
+    _check_background,
+    _direction_limits,
+    _exp_clamped,
+    _forward,
+    _Frame,
+    _rotation,
+    _screen_covariance,
+    _splat,
+    _splat_row,
+    _tile_origin,
     _world_covariance,
 )
 from .sh import SH_C0, SH_C1, SH_C2, SH_C3
@@ -192,12 +210,8 @@ class RenderWithGrad:
 
         pair = _scratch("pair", (len(f.tile_ids), _NGRAD), np.float32)
         _zero_rows(pair)
-        previous = numba.set_parallel_chunksize(1)
-        try:
-            _blend_backward(f.tile_start, f.tile_ids, f.params, f.boxes, w, h, s.background,
-                            f.t_final, f.stop, f.row_last, g_img, g_a, f.order, s.pair_start, pair)
-        finally:
-            numba.set_parallel_chunksize(previous)
+        _blend_backward(f.tile_start, f.tile_ids, f.params, f.boxes, w, h, s.background,
+                        f.t_final, f.stop, f.row_last, g_img, g_a, f.order, s.pair_start, pair)
         cam = s.camera
         contrib = _scratch("contrib", (n if masks is not None else 0, 6), np.float64)
         _project_backward(gs.means, gs.quats, f.variances, f.opacities, gs.sh, cam.world_to_camera, cam.K,
@@ -269,12 +283,18 @@ def _pair_start(boxes, order, n):
     return start
 
 
-@numba.njit(parallel=True, cache=True)
+@numba.njit(nogil=True, cache=True)
+def _zero_chunks(first, step, nchunks, table):
+    """Chunks ``first, first + step, ...`` of ``CHUNK`` rows of table (P, K) set to zeros (one thread's share)."""
+    for chunk in range(first, nchunks, step):
+        for r in range(chunk * CHUNK, min(table.shape[0], (chunk + 1) * CHUNK)):
+            for k in range(table.shape[1]):
+                table[r, k] = 0
+
+
 def _zero_rows(table):
     """Set table (P, K) to zeros, in parallel."""
-    for r in numba.prange(table.shape[0]):
-        for k in range(table.shape[1]):
-            table[r, k] = 0
+    parallel_for(_zero_chunks, chunks(table.shape[0]), table)
 
 
 @numba.njit(cache=True)
@@ -406,7 +426,6 @@ def _backward_lanes(state, accs, base, j0, nlanes, du, a2, b1, c0, xlo, xhi, opa
         state[i + p3] = s_b + wu * blue
 
 
-@numba.njit(parallel=True, cache=True, error_model="numpy", fastmath={"contract"})
 def _blend_backward(tile_start, tile_ids, params, boxes, width, height, background,
                     t_final, stop, row_last, grad_rgb, grad_alpha, order, pair_start, pair):
     """Gradients of the loss with respect to every (Gaussian, tile) pair's 2D parameters.
@@ -432,10 +451,18 @@ def _blend_backward(tile_start, tile_ids, params, boxes, width, height, backgrou
         on first touch, far cheaper than scattered stores.
     """
     ntx = (width + TILE - 1) // TILE
-    ntiles = ntx * ((height + TILE - 1) // TILE)
+    parallel_for(_blend_backward_tiles, ntx * ((height + TILE - 1) // TILE), ntx, tile_start, tile_ids, params, boxes,
+                 width, height, background, t_final, stop, row_last, grad_rgb, grad_alpha, order, pair_start, pair)
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", fastmath={"contract"})
+def _blend_backward_tiles(first, step, ntiles, ntx, tile_start, tile_ids, params, boxes, width, height, background,
+                          t_final, stop, row_last, grad_rgb, grad_alpha, order, pair_start, pair):
+    """Tiles ``first, first + step, ...`` of ``_blend_backward`` (one thread's share), each into its pairs'
+    rows of ``pair``."""
     f32 = np.float32
     plane = TILE * TILE
-    for t in numba.prange(ntiles):
+    for t in range(first, ntiles, step):
         xs, ys, tw, th = _tile_origin(t, ntx, width, height)
         start, end = tile_start[t], tile_start[t + 1]
         state = np.zeros(_NPLANE_BWD * plane, np.float32)
@@ -729,7 +756,17 @@ def _project_range(lo, hi, means, quats, variances, opacities, sh, view, K, camp
             contrib[i, 3], contrib[i, 4], contrib[i, 5] = vmx, vmy, vmz
 
 
-@numba.njit(parallel=True, cache=True, error_model="numpy")
+@numba.njit(nogil=True, cache=True, error_model="numpy")
+def _project_chunks(first, step, nchunks, means, quats, variances, opacities, sh, view, K, campos, width, height,
+                    pair, pair_start, want_pose, v_means, v_quats, v_log_scales, v_logits, v_sh, contrib):
+    """Chunks ``first, first + step, ...`` of ``CHUNK`` Gaussians of ``_project_backward`` (one thread's share)."""
+    n = means.shape[0]
+    for chunk in range(first, nchunks, step):
+        _project_range(chunk * CHUNK, min(n, (chunk + 1) * CHUNK), means, quats, variances, opacities, sh,
+                       view, K, campos, width, height, pair, pair_start, want_pose,
+                       v_means, v_quats, v_log_scales, v_logits, v_sh, contrib)
+
+
 def _project_backward(means, quats, variances, opacities, sh, view, K, campos, width, height,
                       pair, pair_start, want_pose, v_means, v_quats, v_log_scales, v_logits, v_sh, contrib):
     """From the 2D gradients to the Gaussians' parameters, in float64.
@@ -754,8 +791,6 @@ def _project_backward(means, quats, variances, opacities, sh, view, K, campos, w
         ``[μ × ∂L/∂μ + 2 vex(Σ ∂L/∂Σ), ∂L/∂μ]``: each Gaussian's share of a pose gradient
         (zeros for culled Gaussians).
     """
-    n = means.shape[0]
-    for chunk in numba.prange((n + _CHUNK - 1) // _CHUNK):
-        _project_range(chunk * _CHUNK, min(n, (chunk + 1) * _CHUNK), means, quats, variances, opacities, sh,
-                       view, K, campos, width, height, pair, pair_start, want_pose,
-                       v_means, v_quats, v_log_scales, v_logits, v_sh, contrib)
+    parallel_for(_project_chunks, chunks(means.shape[0]), means, quats, variances, opacities,
+                 sh, view, K, campos, width, height, pair, pair_start, want_pose, v_means, v_quats, v_log_scales,
+                 v_logits, v_sh, contrib)

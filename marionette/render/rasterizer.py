@@ -42,12 +42,15 @@ uses the same square box so the two agree exactly. The box is further cut to
 the bounding box of the ellipse ``dᵀ Σ'^-1 d <= 2 ln(255 o)`` (slightly
 enlarged): outside it ``α < 1/255`` and the pixel would be skipped anyway, so
 this is a pure speed-up that changes no result.
+
+The parallel loops hand their items (chunks of Gaussians, tiles) to threads with
+:func:`marionette.parallel.parallel_for`; every item writes its own outputs, so
+the image does not depend on the thread count.
 """
 
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -57,15 +60,10 @@ import numpy as np
 from ..camera import Camera
 from ..errors import InputError
 from ..gaussians import Gaussians
+from ..parallel import CHUNK, chunks, parallel_for
 from .sh import _eval_sh_one
 
 __all__ = ["render", "RenderOutput"]
-
-# Idle OpenMP threads busy-wait by default, and on a shared machine they take
-# the core that a descheduled worker needs to finish its share: measured 2-3×
-# slower frames on 2 cores with one other busy process, no change when idle.
-# Takes effect if set before numba first loads libgomp; a user's value wins.
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 #: Tile side in pixels.
 TILE = 16
@@ -78,10 +76,6 @@ _BIN_RUNS = 8
 #: Added to the alpha ellipse ``2 ln(255 o)`` so rounding never drops a pixel
 #: that the ``α >= 1/255`` test would keep.
 _ELLIPSE_MARGIN = 0.01
-#: Gaussians per task of a parallel loop over Gaussians. The loop only hands
-#: out the tasks to a serial function: numba compiles a parallel loop's long
-#: body about twice as slowly as a function's.
-_CHUNK = 1024
 
 # Columns of the per-Gaussian parameter table built by ``_preprocess``.
 _U, _V, _CA, _CB, _CC, _OPACITY, _R, _G, _B, _Z = range(10)
@@ -206,12 +200,7 @@ def _forward(gaussians: Gaussians, camera: Camera, background: np.ndarray,
     lap("sort")
     tile_start, tile_ids = _bin(boxes, w, h, _BIN_RUNS)
     lap("bin")
-    # Tiles differ widely in cost (object vs empty): hand them out one at a time.
-    previous = numba.set_parallel_chunksize(1)
-    try:
-        out = _blend(tile_start, tile_ids, params, boxes, w, h, background, bool(save))
-    finally:
-        numba.set_parallel_chunksize(previous)
+    out = _blend(tile_start, tile_ids, params, boxes, w, h, background, bool(save))
     lap("blend")
     return _Frame(variances, opacities, order, params, boxes, tile_start, tile_ids, *out)
 
@@ -316,7 +305,17 @@ def _preprocess_range(lo, hi, means, quats, log_scales, opacity_logits, sh, vari
         depths[i] = tz
 
 
-@numba.njit(parallel=True, cache=True, error_model="numpy")
+@numba.njit(nogil=True, cache=True, error_model="numpy")
+def _preprocess_chunks(first, step, nchunks, means, quats, log_scales, opacity_logits, sh, variances, opacities,
+                       ellipse, view, K, campos, width, height, params, boxes, depths, status):
+    """Chunks ``first, first + step, ...`` of ``CHUNK`` Gaussians of ``_preprocess`` (one thread's share)."""
+    n = means.shape[0]
+    for chunk in range(first, nchunks, step):
+        _preprocess_range(chunk * CHUNK, min(n, (chunk + 1) * CHUNK), means, quats, log_scales,
+                          opacity_logits, sh, variances, opacities, ellipse, view, K, campos, width, height,
+                          params, boxes, depths, status)
+
+
 def _preprocess(means, quats, log_scales, opacity_logits, sh, variances, opacities, ellipse,
                 view, K, campos, width, height):
     """Project Gaussians to screen space, without branches (culling is a flag).
@@ -351,10 +350,8 @@ def _preprocess(means, quats, log_scales, opacity_logits, sh, variances, opaciti
     boxes = np.empty((n, 4), np.int32)
     depths = np.empty(n, np.float32)
     status = np.empty(n, np.int8)
-    for chunk in numba.prange((n + _CHUNK - 1) // _CHUNK):
-        _preprocess_range(chunk * _CHUNK, min(n, (chunk + 1) * _CHUNK), means, quats, log_scales,
-                          opacity_logits, sh, variances, opacities, ellipse, view, K, campos, width, height,
-                          params, boxes, depths, status)
+    parallel_for(_preprocess_chunks, chunks(n), means, quats, log_scales, opacity_logits, sh,
+                 variances, opacities, ellipse, view, K, campos, width, height, params, boxes, depths, status)
     return params, boxes, depths, status
 
 
@@ -429,25 +426,72 @@ def _screen_covariance(view, fx, fy, lims, xz, yz, itz, sigma):
             q[0] * sq[0] + q[1] * sq[1] + q[2] * sq[2] + LOW_PASS)
 
 
-@numba.njit(parallel=True, cache=True)
+@numba.njit(nogil=True, cache=True)
+def _gather_chunks(first, step, nchunks, order, params, boxes, params_out, boxes_out):
+    """Chunks ``first, first + step, ...`` of ``CHUNK`` rows of ``_gather`` (one thread's share). Element
+    loops: a row slice would bump a reference count shared by all threads."""
+    m = order.shape[0]
+    for chunk in range(first, nchunks, step):
+        for i in range(chunk * CHUNK, min(m, (chunk + 1) * CHUNK)):
+            g = order[i]
+            for k in range(_NPARAM):
+                params_out[i, k] = params[g, k]
+            for k in range(4):
+                boxes_out[i, k] = boxes[g, k]
+
+
 def _gather(order, params, boxes):
     """Rows of params (N, 10) float32 and boxes (N, 4) int32 picked by order (M,) int32 →
     (M, 10), (M, 4): one pass of scattered reads, after which ``_bin`` reads
-    sequentially and each tile's list walks memory forwards. Element loops: a
-    row slice would bump a reference count shared by all threads."""
+    sequentially and each tile's list walks memory forwards."""
     m = order.shape[0]
     params_out = np.empty((m, _NPARAM), np.float32)
     boxes_out = np.empty((m, 4), np.int32)
-    for i in numba.prange(m):
-        g = order[i]
-        for k in range(_NPARAM):
-            params_out[i, k] = params[g, k]
-        for k in range(4):
-            boxes_out[i, k] = boxes[g, k]
+    parallel_for(_gather_chunks, chunks(m), order, params, boxes, params_out, boxes_out)
     return params_out, boxes_out
 
 
-@numba.njit(parallel=True, cache=True)
+@numba.njit(nogil=True, cache=True)
+def _bin_count(first, step, nruns, boxes, ntx, counts):
+    """Runs ``first, first + step, ...`` of ``_bin``: count each run's hits per tile into counts (nruns, n_tiles)."""
+    m = boxes.shape[0]
+    for run in range(first, nruns, step):
+        for g in range(run * m // nruns, (run + 1) * m // nruns):
+            for ty in range(boxes[g, 2] // TILE, boxes[g, 3] // TILE + 1):
+                for tx in range(boxes[g, 0] // TILE, boxes[g, 1] // TILE + 1):
+                    counts[run, ty * ntx + tx] += 1
+
+
+@numba.njit(cache=True)
+def _bin_offsets(counts):
+    """Prefix sum of counts (nruns, n_tiles) in (tile, run) order: each run's first slot per tile
+    (nruns, n_tiles) and each tile's first slot (n_tiles + 1,), both int64."""
+    nruns, ntiles = counts.shape
+    cursor = np.empty((nruns, ntiles), np.int64)
+    tile_start = np.empty(ntiles + 1, np.int64)
+    total = 0
+    for t in range(ntiles):
+        tile_start[t] = total
+        for run in range(nruns):
+            cursor[run, t] = total
+            total += counts[run, t]
+    tile_start[ntiles] = total
+    return cursor, tile_start
+
+
+@numba.njit(nogil=True, cache=True)
+def _bin_fill(first, step, nruns, boxes, ntx, cursor, tile_ids):
+    """Runs ``first, first + step, ...`` of ``_bin``: write each run's rows into its slots, advancing cursor."""
+    m = boxes.shape[0]
+    for run in range(first, nruns, step):
+        for g in range(run * m // nruns, (run + 1) * m // nruns):
+            for ty in range(boxes[g, 2] // TILE, boxes[g, 3] // TILE + 1):
+                for tx in range(boxes[g, 0] // TILE, boxes[g, 1] // TILE + 1):
+                    t = ty * ntx + tx
+                    tile_ids[cursor[run, t]] = g
+                    cursor[run, t] += 1
+
+
 def _bin(boxes, width, height, nruns):
     """Per-tile lists of Gaussians, each front to back.
 
@@ -472,30 +516,11 @@ def _bin(boxes, width, height, nruns):
     """
     ntx = (width + TILE - 1) // TILE
     ntiles = ntx * ((height + TILE - 1) // TILE)
-    m = boxes.shape[0]
     counts = np.zeros((nruns, ntiles), np.int64)
-    for run in numba.prange(nruns):
-        for g in range(run * m // nruns, (run + 1) * m // nruns):
-            for ty in range(boxes[g, 2] // TILE, boxes[g, 3] // TILE + 1):
-                for tx in range(boxes[g, 0] // TILE, boxes[g, 1] // TILE + 1):
-                    counts[run, ty * ntx + tx] += 1
-    cursor = np.empty((nruns, ntiles), np.int64)
-    tile_start = np.empty(ntiles + 1, np.int64)
-    total = 0
-    for t in range(ntiles):
-        tile_start[t] = total
-        for run in range(nruns):
-            cursor[run, t] = total
-            total += counts[run, t]
-    tile_start[ntiles] = total
-    tile_ids = np.empty(total, np.int32)
-    for run in numba.prange(nruns):
-        for g in range(run * m // nruns, (run + 1) * m // nruns):
-            for ty in range(boxes[g, 2] // TILE, boxes[g, 3] // TILE + 1):
-                for tx in range(boxes[g, 0] // TILE, boxes[g, 1] // TILE + 1):
-                    t = ty * ntx + tx
-                    tile_ids[cursor[run, t]] = g
-                    cursor[run, t] += 1
+    parallel_for(_bin_count, nruns, boxes, ntx, counts)
+    cursor, tile_start = _bin_offsets(counts)
+    tile_ids = np.empty(tile_start[ntiles], np.int32)
+    parallel_for(_bin_fill, nruns, boxes, ntx, cursor, tile_ids)
     return tile_start, tile_ids
 
 
@@ -586,9 +611,70 @@ def _splat_row(params, g, ys, ly):
     return dy, -params[g, _CB] * dy, -f32(0.5) * params[g, _CC] * dy * dy
 
 
+@numba.njit(nogil=True, cache=True, error_model="numpy", fastmath={"contract"})
+def _blend_tiles(first, step, ntiles, ntx, tile_start, tile_ids, params, boxes, width, height, background, save,
+                 image, alpha_out, depth_out, t_final, stop_out, row_last, unclipped):
+    """Tiles ``first, first + step, ...`` of ``_blend`` (one thread's share), each written into its pixels of
+    the outputs."""
+    f32 = np.float32
+    zero, one = f32(0.0), f32(1.0)
+    for t in range(first, ntiles, step):
+        xs, ys, tw, th = _tile_origin(t, ntx, width, height)
+        state = np.zeros(5 * TILE * TILE, np.float32)
+        state[:TILE * TILE] = one
+        stop = np.full(TILE * TILE if save else 0, -1, np.int32)
+        row_done = np.zeros(TILE, np.int64)
+        ndone = 0
+        for k in range(tile_start[t], tile_start[t + 1]):
+            g = tile_ids[k]
+            bx0, bx1, by0, by1, du, xlo, xhi, a2 = _splat(params, boxes, g, xs, ys, tw, th)
+            opacity, z = params[g, _OPACITY], params[g, _Z]
+            red, green, blue = params[g, _R], params[g, _G], params[g, _B]
+            for ly in range(by0, by1 + 1):
+                if row_done[ly] == tw:
+                    continue
+                dy, b1, c0 = _splat_row(params, g, ys, ly)
+                base = np.uint64(ly * TILE)
+                # The 8 lanes of the aligned half holding the box, or all 16: fixed trip
+                # counts, which LLVM turns into one or two 8-wide vector iterations.
+                h0 = bx0 - bx0 % 8
+                if bx1 < h0 + 8:
+                    nd = _blend_lanes(state, base, h0, 8, du, a2, b1, c0, xlo, xhi, opacity,
+                                      red, green, blue, z)
+                else:
+                    nd = _blend_lanes(state, base, 0, TILE, du, a2, b1, c0, xlo, xhi, opacity,
+                                      red, green, blue, z)
+                row_done[ly] += nd
+                ndone += nd
+                if save:
+                    row_last[t, ly] = k
+                    if nd > 0:
+                        for lx in range(bx0, bx1 + 1):
+                            p = ly * TILE + lx
+                            if state[p] < zero and stop[p] < 0:
+                                stop[p] = k
+            if ndone == tw * th:
+                break
+        planes = state.reshape(5, TILE, TILE)
+        for ly in range(th):
+            for lx in range(tw):
+                tr = abs(planes[0, ly, lx])
+                y, x = ys + ly, xs + lx
+                for ch in range(3):
+                    raw = planes[1 + ch, ly, lx] + tr * background[ch]
+                    image[y, x, ch] = min(max(raw, zero), one)
+                    if save:
+                        unclipped[y, x, ch] = (raw >= zero) & (raw <= one)
+                a = one - tr
+                alpha_out[y, x] = a
+                depth_out[y, x] = planes[4, ly, lx] / a if a > zero else zero
+                if save:
+                    t_final[y, x] = tr
+                    stop_out[y, x] = stop[ly * TILE + lx]
+
+
 # ``contract`` only lets LLVM fuse a * b + c into one FMA (one rounding instead
 # of two); no other fast-math licence is taken.
-@numba.njit(parallel=True, cache=True, error_model="numpy", fastmath={"contract"})
 def _blend(tile_start, tile_ids, params, boxes, width, height, background, save):
     """Front-to-back compositing, parallel over tiles.
 
@@ -647,59 +733,6 @@ def _blend(tile_start, tile_ids, params, boxes, width, height, background, save)
     stop_out = np.empty((sh, sw), np.int32)
     row_last = np.full((st, TILE), -1, np.int32)
     unclipped = np.empty((sh, sw, 3), np.bool_)
-    f32 = np.float32
-    zero, one = f32(0.0), f32(1.0)
-    for t in numba.prange(ntiles):
-        xs, ys, tw, th = _tile_origin(t, ntx, width, height)
-        state = np.zeros(5 * TILE * TILE, np.float32)
-        state[:TILE * TILE] = one
-        stop = np.full(TILE * TILE if save else 0, -1, np.int32)
-        row_done = np.zeros(TILE, np.int64)
-        ndone = 0
-        for k in range(tile_start[t], tile_start[t + 1]):
-            g = tile_ids[k]
-            bx0, bx1, by0, by1, du, xlo, xhi, a2 = _splat(params, boxes, g, xs, ys, tw, th)
-            opacity, z = params[g, _OPACITY], params[g, _Z]
-            red, green, blue = params[g, _R], params[g, _G], params[g, _B]
-            for ly in range(by0, by1 + 1):
-                if row_done[ly] == tw:
-                    continue
-                dy, b1, c0 = _splat_row(params, g, ys, ly)
-                base = np.uint64(ly * TILE)
-                # The 8 lanes of the aligned half holding the box, or all 16: fixed trip
-                # counts, which LLVM turns into one or two 8-wide vector iterations.
-                h0 = bx0 - bx0 % 8
-                if bx1 < h0 + 8:
-                    nd = _blend_lanes(state, base, h0, 8, du, a2, b1, c0, xlo, xhi, opacity,
-                                      red, green, blue, z)
-                else:
-                    nd = _blend_lanes(state, base, 0, TILE, du, a2, b1, c0, xlo, xhi, opacity,
-                                      red, green, blue, z)
-                row_done[ly] += nd
-                ndone += nd
-                if save:
-                    row_last[t, ly] = k
-                    if nd > 0:
-                        for lx in range(bx0, bx1 + 1):
-                            p = ly * TILE + lx
-                            if state[p] < zero and stop[p] < 0:
-                                stop[p] = k
-            if ndone == tw * th:
-                break
-        planes = state.reshape(5, TILE, TILE)
-        for ly in range(th):
-            for lx in range(tw):
-                tr = abs(planes[0, ly, lx])
-                y, x = ys + ly, xs + lx
-                for ch in range(3):
-                    raw = planes[1 + ch, ly, lx] + tr * background[ch]
-                    image[y, x, ch] = min(max(raw, zero), one)
-                    if save:
-                        unclipped[y, x, ch] = (raw >= zero) & (raw <= one)
-                a = one - tr
-                alpha_out[y, x] = a
-                depth_out[y, x] = planes[4, ly, lx] / a if a > zero else zero
-                if save:
-                    t_final[y, x] = tr
-                    stop_out[y, x] = stop[ly * TILE + lx]
+    parallel_for(_blend_tiles, ntiles, ntx, tile_start, tile_ids, params, boxes, width, height, background, save,
+              image, alpha_out, depth_out, t_final, stop_out, row_last, unclipped)
     return image, alpha_out, depth_out, t_final, stop_out, row_last, unclipped

@@ -17,6 +17,7 @@ import numba
 import numpy as np
 
 from ..errors import InputError
+from ..parallel import CHUNK, chunks, parallel_for
 
 __all__ = ["eval_sh", "rotate_sh", "sh_rotations"]
 
@@ -142,26 +143,32 @@ def rotate_sh(sh: np.ndarray, rotations: np.ndarray, labels: np.ndarray) -> np.n
                                np.ascontiguousarray(labels, dtype=np.int64))
 
 
-@numba.njit(parallel=True, cache=True)
 def _apply_sh_rotations(sh, mats, labels):
     """sh (N, C, 3) float32, mats (P, C, C) block-diagonal float64, labels (N,) → (N, C, 3) float32."""
-    n, c = sh.shape[0], sh.shape[1]
     out = np.empty_like(sh)
-    for i in numba.prange(n):
-        m = labels[i]
-        for k in range(3):
-            out[i, 0, k] = sh[i, 0, k]
-        for band in range(1, 4):
-            lo, hi = band * band, (band + 1) * (band + 1)
-            if hi > c:
-                break
-            for a in range(lo, hi):
-                for k in range(3):
-                    acc = 0.0
-                    for b in range(lo, hi):
-                        acc += mats[m, a, b] * sh[i, b, k]
-                    out[i, a, k] = acc
+    parallel_for(_sh_rotation_chunks, chunks(sh.shape[0]), sh, mats, labels, out)
     return out
+
+
+@numba.njit(nogil=True, cache=True)
+def _sh_rotation_chunks(first, step, nchunks, sh, mats, labels, out):
+    """Chunks ``first, first + step, ...`` of ``_apply_sh_rotations`` (one thread's share), into out."""
+    n, c = sh.shape[0], sh.shape[1]
+    for chunk in range(first, nchunks, step):
+        for i in range(chunk * CHUNK, min(n, (chunk + 1) * CHUNK)):
+            m = labels[i]
+            for k in range(3):
+                out[i, 0, k] = sh[i, 0, k]
+            for band in range(1, 4):
+                lo, hi = band * band, (band + 1) * (band + 1)
+                if hi > c:
+                    break
+                for a in range(lo, hi):
+                    for k in range(3):
+                        acc = 0.0
+                        for b in range(lo, hi):
+                            acc += mats[m, a, b] * sh[i, b, k]
+                        out[i, a, k] = acc
 
 
 @numba.njit(cache=True, inline="always")

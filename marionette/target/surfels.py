@@ -39,6 +39,7 @@ import numpy as np
 from ..camera import Camera
 from ..gaussians import Gaussians
 from ..geometry import matrix_to_quaternion
+from ..parallel import chunks, parallel_for
 
 __all__ = ["sample_surface"]
 
@@ -60,6 +61,8 @@ _BLUR_LEVELS = (0.0, 0.01, 0.02, 0.04)
 _WALL_LEVEL = 1
 # Below this share of object pixels under a texture read, the object's mean colour is used.
 _MIN_WEIGHT = 1e-3
+# Patches per item of the emission loop shared among threads (a patch emits up to _MAX_SPLIT² surfels).
+_EMIT_CHUNK = 64
 
 
 class _Texture:
@@ -281,7 +284,7 @@ def _walls(grid: _Grid, cells: np.ndarray, s: int) -> list[_Patches]:
 def _emit_numpy(patches: _Patches, texture: _Texture, rotation: np.ndarray) -> _Samples:
     """Every patch's samples at its sub-patch centres; ``rotation`` (3, 3) camera to world.
 
-    The plain-NumPy twin of :func:`_emit_kernel`.
+    The plain-NumPy twin of :func:`_emit_chunks`.
     """
     (e_a, e_b), k_a, k_b = _edge_vectors(patches.corners), patches.split_a, patches.split_b
     quats, scales = _frames(e_a, e_b, np.linalg.norm(e_a, axis=1) / k_a, np.linalg.norm(e_b, axis=1) / k_b,
@@ -361,62 +364,67 @@ def _quaternion_one(m, out):
         out[i] = sign * q[i] / norm
 
 
-@numba.njit(cache=True, parallel=True)
-def _emit_kernel(corners, uv, fold, split_a, split_b, level, overlap, pixel, first, levels, fallback, rotation,
-                 means, quats, scales, colours, pixel_of):
-    """:func:`_emit_numpy` one patch per iteration, writing sample ``first[p] + j k_a + i`` (``first`` (P,)
-    the patches' offsets; ``levels`` the texture's (L, H, W, 4); outputs preallocated)."""
+@numba.njit(nogil=True, cache=True)
+def _emit_chunks(first, step, nchunks, corners, uv, fold, split_a, split_b, level, overlap, pixel, first_sample, levels,
+                 fallback, rotation, means, quats, scales, colours, pixel_of):
+    """:func:`_emit_numpy` for chunks ``first, first + step, ...`` of ``_EMIT_CHUNK`` patches (one thread's share),
+    writing sample ``first_sample[p] + j k_a + i`` of patch ``p`` (``first_sample`` (P,) the patches' offsets;
+    ``levels`` the texture's (L, H, W, 4); outputs preallocated)."""
     h, w = levels.shape[1], levels.shape[2]
-    for p in numba.prange(corners.shape[0]):
-        ka, kb = split_a[p], split_b[p]
-        # The patch's frame, as _frames: along e_a, across it within the patch, and the normal.
-        c0, c1, c2, c3 = corners[p, 0], corners[p, 1], corners[p, 2], corners[p, 3]
-        e_a = (0.5 * (c1[0] - c0[0] + c3[0] - c2[0]), 0.5 * (c1[1] - c0[1] + c3[1] - c2[1]),
-               0.5 * (c1[2] - c0[2] + c3[2] - c2[2]))
-        e_b = (0.5 * (c2[0] - c0[0] + c3[0] - c1[0]), 0.5 * (c2[1] - c0[1] + c3[1] - c1[1]),
-               0.5 * (c2[2] - c0[2] + c3[2] - c1[2]))
-        w_a = np.sqrt(_dot3(e_a, e_a)) / ka
-        w_b = np.sqrt(_dot3(e_b, e_b)) / kb
-        t1 = _unit_or(e_a, _perpendicular_one(e_b))
-        normal = _unit_or(_cross3(t1, e_b), _perpendicular_one(t1))
-        t2 = _cross3(normal, t1)
-        world = np.empty((3, 3))  # rotation @ [t1 t2 normal]
-        for r in range(3):
-            row = (rotation[r, 0], rotation[r, 1], rotation[r, 2])
-            world[r, 0], world[r, 1], world[r, 2] = _dot3(row, t1), _dot3(row, t2), _dot3(row, normal)
-        quat = np.empty(4)
-        _quaternion_one(world, quat)
-        across = abs(_dot3(e_b, t2)) / max(np.sqrt(_dot3(e_b, e_b)), 1e-12) * w_b
-        tangent_a, tangent_b = w_a * overlap[p], max(across, 0.25 * w_a) * overlap[p]
-        thickness = _FLATNESS * min(tangent_a, tangent_b)
-        image = levels[level[p]]
-        for j in range(kb):
-            b = (j + 0.5) / kb
-            for i in range(ka):
-                a = (i + 0.5) / ka
-                n = first[p] + j * ka + i
-                w00, w10, w01, w11 = (1 - a) * (1 - b), a * (1 - b), (1 - a) * b, a * b
-                for c in range(3):
-                    means[n, c] = (w00 * corners[p, 0, c] + w10 * corners[p, 1, c] + w01 * corners[p, 2, c]
-                                   + w11 * corners[p, 3, c])
-                # Element by element: an array-to-array store compiles numba's shape-error formatting (~7 s).
-                quats[n, 0], quats[n, 1], quats[n, 2], quats[n, 3] = quat[0], quat[1], quat[2], quat[3]
-                scales[n, 0], scales[n, 1], scales[n, 2] = tangent_a, tangent_b, thickness
-                pixel_of[n, 0], pixel_of[n, 1] = pixel[p, 0], pixel[p, 1]
-                folded = min(b, 1 - b)
-                u = w00 * uv[p, 0, 0] + w10 * uv[p, 1, 0] + w01 * uv[p, 2, 0] + w11 * uv[p, 3, 0] + folded * fold[p, 0]
-                v = w00 * uv[p, 0, 1] + w10 * uv[p, 1, 1] + w01 * uv[p, 2, 1] + w11 * uv[p, 3, 1] + folded * fold[p, 1]
-                # Bilinear read of the blur level, clamped as _bilinear clamps.
-                u = min(max(u, 0.0), w - 1.0)
-                v = min(max(v, 0.0), h - 1.0)
-                u0 = min(int(np.floor(u)), w - 2) if w > 1 else 0
-                v0 = min(int(np.floor(v)), h - 2) if h > 1 else 0
-                u1, v1 = min(u0 + 1, w - 1), min(v0 + 1, h - 1)
-                fu, fv = u - u0, v - v0
-                weight = _lerp2(image, v0, u0, v1, u1, fv, fu, 3)
-                for c in range(3):
-                    value = _lerp2(image, v0, u0, v1, u1, fv, fu, c) / weight if weight > _MIN_WEIGHT else fallback[c]
-                    colours[n, c] = min(max(value, 0.0), 1.0)
+    for chunk in range(first, nchunks, step):
+        for p in range(chunk * _EMIT_CHUNK, min(corners.shape[0], (chunk + 1) * _EMIT_CHUNK)):
+            ka, kb = split_a[p], split_b[p]
+            # The patch's frame, as _frames: along e_a, across it within the patch, and the normal.
+            c0, c1, c2, c3 = corners[p, 0], corners[p, 1], corners[p, 2], corners[p, 3]
+            e_a = (0.5 * (c1[0] - c0[0] + c3[0] - c2[0]), 0.5 * (c1[1] - c0[1] + c3[1] - c2[1]),
+                   0.5 * (c1[2] - c0[2] + c3[2] - c2[2]))
+            e_b = (0.5 * (c2[0] - c0[0] + c3[0] - c1[0]), 0.5 * (c2[1] - c0[1] + c3[1] - c1[1]),
+                   0.5 * (c2[2] - c0[2] + c3[2] - c1[2]))
+            w_a = np.sqrt(_dot3(e_a, e_a)) / ka
+            w_b = np.sqrt(_dot3(e_b, e_b)) / kb
+            t1 = _unit_or(e_a, _perpendicular_one(e_b))
+            normal = _unit_or(_cross3(t1, e_b), _perpendicular_one(t1))
+            t2 = _cross3(normal, t1)
+            world = np.empty((3, 3))  # rotation @ [t1 t2 normal]
+            for r in range(3):
+                row = (rotation[r, 0], rotation[r, 1], rotation[r, 2])
+                world[r, 0], world[r, 1], world[r, 2] = _dot3(row, t1), _dot3(row, t2), _dot3(row, normal)
+            quat = np.empty(4)
+            _quaternion_one(world, quat)
+            across = abs(_dot3(e_b, t2)) / max(np.sqrt(_dot3(e_b, e_b)), 1e-12) * w_b
+            tangent_a, tangent_b = w_a * overlap[p], max(across, 0.25 * w_a) * overlap[p]
+            thickness = _FLATNESS * min(tangent_a, tangent_b)
+            image = levels[level[p]]
+            for j in range(kb):
+                b = (j + 0.5) / kb
+                for i in range(ka):
+                    a = (i + 0.5) / ka
+                    n = first_sample[p] + j * ka + i
+                    w00, w10, w01, w11 = (1 - a) * (1 - b), a * (1 - b), (1 - a) * b, a * b
+                    for c in range(3):
+                        means[n, c] = (w00 * corners[p, 0, c] + w10 * corners[p, 1, c] + w01 * corners[p, 2, c]
+                                       + w11 * corners[p, 3, c])
+                    # Element by element: an array-to-array store compiles numba's shape-error formatting (~7 s).
+                    quats[n, 0], quats[n, 1], quats[n, 2], quats[n, 3] = quat[0], quat[1], quat[2], quat[3]
+                    scales[n, 0], scales[n, 1], scales[n, 2] = tangent_a, tangent_b, thickness
+                    pixel_of[n, 0], pixel_of[n, 1] = pixel[p, 0], pixel[p, 1]
+                    folded = min(b, 1 - b)
+                    u = (w00 * uv[p, 0, 0] + w10 * uv[p, 1, 0] + w01 * uv[p, 2, 0] + w11 * uv[p, 3, 0]
+                         + folded * fold[p, 0])
+                    v = (w00 * uv[p, 0, 1] + w10 * uv[p, 1, 1] + w01 * uv[p, 2, 1] + w11 * uv[p, 3, 1]
+                         + folded * fold[p, 1])
+                    # Bilinear read of the blur level, clamped as _bilinear clamps.
+                    u = min(max(u, 0.0), w - 1.0)
+                    v = min(max(v, 0.0), h - 1.0)
+                    u0 = min(int(np.floor(u)), w - 2) if w > 1 else 0
+                    v0 = min(int(np.floor(v)), h - 2) if h > 1 else 0
+                    u1, v1 = min(u0 + 1, w - 1), min(v0 + 1, h - 1)
+                    fu, fv = u - u0, v - v0
+                    weight = _lerp2(image, v0, u0, v1, u1, fv, fu, 3)
+                    for c in range(3):
+                        value = (_lerp2(image, v0, u0, v1, u1, fv, fu, c) / weight if weight > _MIN_WEIGHT
+                                 else fallback[c])
+                        colours[n, c] = min(max(value, 0.0), 1.0)
 
 
 def _emit(patches: _Patches, texture: _Texture, rotation: np.ndarray, reference: bool = False) -> _Samples:
@@ -428,9 +436,9 @@ def _emit(patches: _Patches, texture: _Texture, rotation: np.ndarray, reference:
     total = int(counts.sum())
     out = _Samples(np.empty((total, 3)), np.empty((total, 4)), np.empty((total, 3)), np.empty((total, 3), np.float32),
                    np.empty((total, 2), patches.pixel.dtype))
-    _emit_kernel(patches.corners, patches.uv, patches.fold, patches.split_a, patches.split_b, patches.level,
-                 patches.overlap, patches.pixel, np.cumsum(counts) - counts, texture.levels, texture.fallback,
-                 rotation, *out)
+    parallel_for(_emit_chunks, chunks(len(counts), _EMIT_CHUNK), patches.corners, patches.uv, patches.fold,
+                 patches.split_a, patches.split_b, patches.level, patches.overlap, patches.pixel,
+                 np.cumsum(counts) - counts, texture.levels, texture.fallback, rotation, *out)
     return out
 
 

@@ -49,8 +49,12 @@ from scipy.sparse import csr_matrix
 from scipy.spatial import cKDTree
 
 from ..errors import InputError
+from ..parallel import chunks, parallel_for
 
 __all__ = ["RefineOptions", "Refiner"]
+
+#: Patches per item of the shape-matching loop shared among threads.
+_MATCH_CHUNK = 64
 
 
 @dataclass(frozen=True)
@@ -87,8 +91,7 @@ class RefineOptions:
             raise InputError("refinement weights and epsilon must be non-negative")
 
 
-@numba.njit(parallel=True, cache=True)
-def _match_patches(rest, mu, patch, rot, tol, max_iter):  # pragma: no cover - compiled
+def _match_patches(rest, mu, patch, rot, tol, max_iter):
     """Goal positions (M, k, 3) of patches (M, k) and their rotations ``rot`` (M, 3, 3), updated in place.
 
     The rotation maximising ``tr(Rᵀ A)``, ``A = Σ (x − c)(x⁰ − c⁰)ᵀ``, by
@@ -97,52 +100,59 @@ def _match_patches(rest, mu, patch, rot, tol, max_iter):  # pragma: no cover - c
     ``R ← exp(ω) R`` until ``|ω| < tol``. Same optimum as Kabsch (SVD), much cheaper
     per patch when warm (a step or two per Euler step).
     """
-    m, k = patch.shape
-    goal = np.empty((m, k, 3))
-    for p in numba.prange(m):
-        c0 = np.zeros(3)
-        c = np.zeros(3)
-        for s in range(k):
-            for d in range(3):
-                c0[d] += rest[patch[p, s], d] / k
-                c[d] += mu[patch[p, s], d] / k
-        a = np.zeros((3, 3))
-        e = np.empty((3, 3))
-        for s in range(k):
-            for i in range(3):
-                for j in range(3):
-                    a[i, j] += (mu[patch[p, s], i] - c[i]) * (rest[patch[p, s], j] - c0[j])
-        r = rot[p]  # a view: updated in place
-        for _ in range(max_iter):
-            w0 = w1 = w2 = dot = 0.0
-            for col in range(3):
-                rc0, rc1, rc2 = r[0, col], r[1, col], r[2, col]
-                ac0, ac1, ac2 = a[0, col], a[1, col], a[2, col]
-                w0 += rc1 * ac2 - rc2 * ac1
-                w1 += rc2 * ac0 - rc0 * ac2
-                w2 += rc0 * ac1 - rc1 * ac0
-                dot += rc0 * ac0 + rc1 * ac1 + rc2 * ac2
-            scale = 1.0 / (abs(dot) + 1e-300)
-            w0, w1, w2 = w0 * scale, w1 * scale, w2 * scale
-            angle = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
-            if angle < tol:
-                break
-            x, y, z = w0 / angle, w1 / angle, w2 / angle
-            cs, sn = np.cos(angle), np.sin(angle)
-            e[0, 0], e[0, 1], e[0, 2] = cs + x * x * (1 - cs), x * y * (1 - cs) - z * sn, x * z * (1 - cs) + y * sn
-            e[1, 0], e[1, 1], e[1, 2] = y * x * (1 - cs) + z * sn, cs + y * y * (1 - cs), y * z * (1 - cs) - x * sn
-            e[2, 0], e[2, 1], e[2, 2] = z * x * (1 - cs) - y * sn, z * y * (1 - cs) + x * sn, cs + z * z * (1 - cs)
-            for col in range(3):
-                t0, t1, t2 = r[0, col], r[1, col], r[2, col]
-                for i in range(3):
-                    r[i, col] = e[i, 0] * t0 + e[i, 1] * t1 + e[i, 2] * t2
-        for s in range(k):
-            for i in range(3):
-                g = c[i]
-                for j in range(3):
-                    g += r[i, j] * (rest[patch[p, s], j] - c0[j])
-                goal[p, s, i] = g
+    goal = np.empty((patch.shape[0], patch.shape[1], 3))
+    parallel_for(_match_chunks, chunks(patch.shape[0], _MATCH_CHUNK), rest, mu, patch, rot, tol, max_iter, goal)
     return goal
+
+
+@numba.njit(nogil=True, cache=True)
+def _match_chunks(first, step, nchunks, rest, mu, patch, rot, tol, max_iter, goal):  # pragma: no cover - compiled
+    """Chunks ``first, first + step, ...`` of ``_MATCH_CHUNK`` patches of ``_match_patches`` (one thread's share)."""
+    m, k = patch.shape
+    for chunk in range(first, nchunks, step):
+        for p in range(chunk * _MATCH_CHUNK, min(m, (chunk + 1) * _MATCH_CHUNK)):
+            c0 = np.zeros(3)
+            c = np.zeros(3)
+            for s in range(k):
+                for d in range(3):
+                    c0[d] += rest[patch[p, s], d] / k
+                    c[d] += mu[patch[p, s], d] / k
+            a = np.zeros((3, 3))
+            e = np.empty((3, 3))
+            for s in range(k):
+                for i in range(3):
+                    for j in range(3):
+                        a[i, j] += (mu[patch[p, s], i] - c[i]) * (rest[patch[p, s], j] - c0[j])
+            r = rot[p]  # a view: updated in place
+            for _ in range(max_iter):
+                w0 = w1 = w2 = dot = 0.0
+                for col in range(3):
+                    rc0, rc1, rc2 = r[0, col], r[1, col], r[2, col]
+                    ac0, ac1, ac2 = a[0, col], a[1, col], a[2, col]
+                    w0 += rc1 * ac2 - rc2 * ac1
+                    w1 += rc2 * ac0 - rc0 * ac2
+                    w2 += rc0 * ac1 - rc1 * ac0
+                    dot += rc0 * ac0 + rc1 * ac1 + rc2 * ac2
+                scale = 1.0 / (abs(dot) + 1e-300)
+                w0, w1, w2 = w0 * scale, w1 * scale, w2 * scale
+                angle = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+                if angle < tol:
+                    break
+                x, y, z = w0 / angle, w1 / angle, w2 / angle
+                cs, sn = np.cos(angle), np.sin(angle)
+                e[0, 0], e[0, 1], e[0, 2] = cs + x * x * (1 - cs), x * y * (1 - cs) - z * sn, x * z * (1 - cs) + y * sn
+                e[1, 0], e[1, 1], e[1, 2] = y * x * (1 - cs) + z * sn, cs + y * y * (1 - cs), y * z * (1 - cs) - x * sn
+                e[2, 0], e[2, 1], e[2, 2] = z * x * (1 - cs) - y * sn, z * y * (1 - cs) + x * sn, cs + z * z * (1 - cs)
+                for col in range(3):
+                    t0, t1, t2 = r[0, col], r[1, col], r[2, col]
+                    for i in range(3):
+                        r[i, col] = e[i, 0] * t0 + e[i, 1] * t1 + e[i, 2] * t2
+            for s in range(k):
+                for i in range(3):
+                    g = c[i]
+                    for j in range(3):
+                        g += r[i, j] * (rest[patch[p, s], j] - c0[j])
+                    goal[p, s, i] = g
 
 
 class Refiner:
