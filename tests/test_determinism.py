@@ -166,10 +166,10 @@ def rotation_gap_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def test_parts_auto_does_not_follow_the_blas_kernel_or_thread_count(motion, frames, size, tmp_path):
     """Issue 14: the same ``extract --parts auto`` under 1 and 2 threads and other BLAS kernels.
 
-    The part count (and how it was chosen) must agree everywhere; the poses of a one-part motion and of
-    the hinge's still body within 0.05°. The hinge's lid is not held to it: Lucas-Kanade drift on the
-    thin lid leaves its pose ill-determined (tens of degrees off the truth, xfail in test_extract), and
-    PnP RANSAC and the bundle adjustment then amplify last-bit differences (measured: 9-14° apart).
+    The part count (and how it was chosen) must agree everywhere, and the poses within 0.05°: a one-part
+    motion's, and the hinge's still body and lid. The lid's free poses do differ (PnP RANSAC keeps 5 or 6
+    inliers on its few tracks, by the last bits), and the hinge fit of each used to settle in a minimum
+    of its own, 46° apart on this clip; fitted from two starts, both reach the best one, near the truth.
     """
     scene = make_scene(motion, seed=0, num_frames=frames, size=size)
     write_video(tmp_path / "frames", scene.frames, scene.fps)
@@ -189,9 +189,12 @@ def test_parts_auto_does_not_follow_the_blas_kernel_or_thread_count(motion, fram
     for other, other_meta in priors[1:]:
         assert other_meta["num_parts"] == meta["num_parts"]
         assert other_meta["part_selection_note"] == meta["part_selection_note"]
-        if motion == "hinge":  # the still body: the part that turns least
-            body = int(np.argmin(rotation_gap_deg(np.eye(4), poses[:, -1])))
-            other_body = int(np.argmin(rotation_gap_deg(np.eye(4), other[:, -1])))
-            assert rotation_gap_deg(poses[body], other[other_body]).max() < 0.05
+        if motion == "hinge":  # parts in the order of how far they turn: the still body, then the lid
+            order = np.argsort(rotation_gap_deg(np.eye(4), poses[:, -1]))
+            other_order = np.argsort(rotation_gap_deg(np.eye(4), other[:, -1]))
+            assert rotation_gap_deg(poses[order], other[other_order]).max() < 0.05
         else:
             assert rotation_gap_deg(poses, other).max() < 0.05
+    if motion == "hinge":  # and the lid they agree on is the true one (its free poses alone: 17° off)
+        lid = int(np.argmax(rotation_gap_deg(np.eye(4), poses[:, -1])))
+        assert np.median(rotation_gap_deg(poses[lid, 1:], scene.poses[1, 1:])) < 5.0
