@@ -142,7 +142,7 @@ def write_page(suite: list[dict], det: list[dict], coretype: str) -> str:
     lines += ["Determinism: `extract --parts auto` (masks given) of the synthetic one-part turn (`outofplane`, 16 "
               "frames, 160x120) and hinge (20 frames, 200x150), each configuration in a fresh process, against the "
               "first. Pose gap: the largest rotation difference over frames and parts (for the hinge, its still "
-              "body; the lid's, which Lucas-Kanade drift leaves ill-determined, is shown apart). The hinge's "
+              "body; the lid's, whose fit has several minima, is shown apart). The hinge's "
               "parts: its moving lid and the static group its still body forms (the note counts the moving "
               "ones).", "",
               "| motion | threads, BLAS kernel | parts | part_selection_note | pose gap (°) | lid gap (°) |",
