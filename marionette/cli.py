@@ -308,6 +308,7 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
     from . import pipeline
     from .plot import plot_prior
     from .source import ExtractOptions
+    from .source.extract import HINGE_NOTE
 
     parts_value = _parsed("--parts", parse_parts, parts)
     _check_max_side(max_side)
@@ -329,9 +330,12 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
     session.reporter.message(_prior_line(prior))
     recovered = prior.metadata.get("recovered_frames") or {}
     if recovered:
+        aligned = [frame for frame, note in recovered.items() if not note.startswith(HINGE_NOTE)]
         seconds = prior.metadata.get("timings", {}).get("recover", 0.0)
-        session.reporter.detail(f"  {len(recovered)} part-frames the tracks lost were recovered by alignment "
-                                f"({seconds:.2f} s): {', '.join(recovered)}")
+        how = (f"by alignment ({seconds:.2f} s)" if len(aligned) == len(recovered) else
+               "about a hinge" if not aligned else f"by alignment ({seconds:.2f} s) or about a hinge")
+        session.reporter.detail(f"  {len(recovered)} part-frames the tracks lost were recovered {how}: "
+                                f"{', '.join(recovered)}")
     for part, joint in (prior.metadata.get("joints") or {}).items():
         how = (f"a hinge on part {joint['on_part']} ({joint['residual_px']:.2f} px against "
                f"{joint['free_residual_px']:.2f} px free)"

@@ -175,6 +175,11 @@ def _propagate_labels(tracks: Tracks, labels: np.ndarray, unlabelled: int, radiu
 #: A hinge is kept when its median reprojection error exceeds the free poses' by no more than this (pixels):
 #: within the tracks' noise, the simpler model.
 _HINGE_TOLERANCE_PX = 0.25
+#: A frame whose free pose failed counts as found by the hinge fit when this many of the part's tracks place its
+#: one angle (a free pose needs 6 inliers for its 6 degrees of freedom).
+_HINGE_MIN_TRACKS = 3
+#: How the note of such a frame in the metadata's ``recovered_frames`` begins.
+HINGE_NOTE = "turned about the hinge"
 
 
 def _fit_joints(parts: list[_Part], tracks: Tracks, track_labels: np.ndarray, masks: np.ndarray, k: np.ndarray,
@@ -202,6 +207,10 @@ def _fit_joints(parts: list[_Part], tracks: Tracks, track_labels: np.ndarray, ma
                                  f"({fit.residual_px:.2f} px against {fit.free_residual_px:.2f} px)"}
         else:
             part.poses = fit.poses
+            for t in sorted(part.failed):  # a frame the free fit lost, placed by its tracks about the hinge
+                if fit.seen[t] >= _HINGE_MIN_TRACKS:
+                    del part.failed[t]
+                    part.recovered[t] = f"{HINGE_NOTE} to fit {fit.seen[t]} tracks"
             trusted = np.array([t for t in range(len(part.poses)) if t not in part.failed])
             part.centre = carved_centroid(part.shape, masks, part.poses, trusted)
             notes[str(index)] = {"model": "hinge", "on_part": on, "axis": np.round(fit.axis, 4).tolist(),

@@ -76,6 +76,8 @@ class HingeFit:
         The same under the free poses it started from, measured alike.
     dropped : int
         Tracks left out of the final fit as not following the hinge.
+    seen : (T,) int
+        Tracks of the final fit seen in each frame: what placed its angle (none: it kept its start).
     """
 
     poses: np.ndarray
@@ -85,6 +87,7 @@ class HingeFit:
     residual_px: float
     free_residual_px: float
     dropped: int
+    seen: np.ndarray
 
 
 def hinge_poses(body_poses: np.ndarray, axis: np.ndarray, point: np.ndarray, angles: np.ndarray) -> np.ndarray:
@@ -254,7 +257,7 @@ def fit_hinge(uv: np.ndarray, visible: np.ndarray, body_poses: np.ndarray, free_
         poses = hinge_poses(body_poses, axis, point, angles)
         hinged = float(np.median(np.linalg.norm(every.residuals(poses, k)[0], axis=1)))
         if best is None or hinged < best.residual_px:
-            best = HingeFit(poses, axis, point, angles, hinged, free, dropped)
+            best = HingeFit(poses, axis, point, angles, hinged, free, dropped, visible[:, tracks].sum(axis=1))
     return best
 
 
