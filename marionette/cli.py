@@ -330,10 +330,12 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
     session.reporter.message(_prior_line(prior))
     recovered = prior.metadata.get("recovered_frames") or {}
     if recovered:
-        aligned = [frame for frame, note in recovered.items() if not note.startswith(HINGE_NOTE)]
+        hinged = sum(note.startswith(HINGE_NOTE) for note in recovered.values())
         seconds = prior.metadata.get("timings", {}).get("recover", 0.0)
-        how = (f"by alignment ({seconds:.2f} s)" if len(aligned) == len(recovered) else
-               "about a hinge" if not aligned else f"by alignment ({seconds:.2f} s) or about a hinge")
+        ways = [f"by alignment ({seconds:.2f} s)"] if hinged < len(recovered) else []
+        if hinged:
+            ways.append("about a hinge")
+        how = " or ".join(ways)
         session.reporter.detail(f"  {len(recovered)} part-frames the tracks lost were recovered {how}: "
                                 f"{', '.join(recovered)}")
     for part, joint in (prior.metadata.get("joints") or {}).items():
