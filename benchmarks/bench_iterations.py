@@ -59,7 +59,8 @@ def main() -> None:
              + ("" if args.coarse_fractions is None else f" --coarse-fractions {args.coarse_fractions}")
              + ("" if args.doc == OUT else f" --doc {args.doc.resolve().relative_to(ROOT)}") + "` on "
              f"{platform.machine()}, 2 cores. `eval_self` (Table 1's protocol, target *reconstruction*, fitted to "
-             "every frame) with `ReconstructOptions(iterations=N, ssim_weight=λ, coarse_fraction=c)`; the defaults "
+             "every frame, the focal length estimated from the clip) with "
+             "`ReconstructOptions(iterations=N, ssim_weight=λ, coarse_fraction=c)`; the defaults "
              f"are {defaults.iterations}, {defaults.ssim_weight:g} and {defaults.coarse_fraction:g} (λ: the D-SSIM "
              "term's weight; c: the share of the steps fitted at half resolution first). *Fit*: seconds of the "
              "reconstruction; *seconds*: the whole evaluation (extraction, fit, render, metrics), one run each. "

@@ -54,6 +54,7 @@ BENCHES = (
                                                    "--large", "0")),
     Bench("bench_tracks.py", "tracks.md", quick=("--seeds", "1", "--frames", "24", "--size", "160x120",
                                                  "--noise", "0")),
+    Bench("bench_focal.py", "focal.md", quick=("--seeds", "1", "--frames", "24", "--size", "160x120")),
     Bench("bench_parts.py", "parts.md", quick=("--seeds", "1", "--frames", "24", "--size", "160x120")),
     Bench("bench_extract_real.py", "extract_real.md", needs_data=True, quick=("--runs", "1")),
     Bench("bench_foreground.py", "foreground.md", needs_data=True),
@@ -74,8 +75,9 @@ SECTIONS = (
      " against the figures they buy.", ("table1.md", "iterations.md")),
     ("Pose accuracy on the synthetic suite",
      "Rotation and centroid errors against exact ground truth, by motion type and tracking noise; rigid parts"
-     " found on the synthetic hinge; the accuracy of the tracks they come from.",
-     ("extract.md", "tracks.md", "parts.md")),
+     " found on the synthetic hinge; the accuracy of the tracks they come from; the focal length estimated from"
+     " the motion.",
+     ("extract.md", "tracks.md", "parts.md", "focal.md")),
     ("Time and memory in the paper's setting",
      "50 source frames at 854x480 and a 512x512 target, next to the paper's Table 2 (26.8 minutes on an RTX"
      " A6000); peak memory on long videos.", ("paper_setting.md", "memory.md")),

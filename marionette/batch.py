@@ -77,7 +77,7 @@ from .camera import MAX_IMAGE_SIDE
 from .errors import InputError
 from .io import read_prior, write_prior
 from .io.atomic import check_output_dir, leftover_temporaries, write_text
-from .options import parse_background, parse_part_seeds, parse_parts, parse_size
+from .options import parse_background, parse_focal, parse_part_seeds, parse_parts, parse_size
 from .prior import MOTION_FRAMES, SpatPrior
 from .progress import Reporter
 from .render.camera_path import CAMERA_MOVES
@@ -144,7 +144,7 @@ def _shared(parse: Callable[[Any], Any]) -> Callable[[Any, Path], Any]:
 #: Extraction options: checks and the defaults of ``marionette run``.
 EXTRACT_OPTIONS = {
     "masks": (_existing("folder"), None), "depth": (_existing("folder"), None),
-    "focal": (_number(0, 1e6, above=True), None), "parts": (_shared(parse_parts), 1),
+    "focal": (_shared(parse_focal), None), "parts": (_shared(parse_parts), 1),
     "start": (_integer(0, 10**7), 0),
     "end": (_integer(1, 10**7), None), "stride": (_integer(1, 10**4), 1),
     "max_side": (_integer(16, MAX_IMAGE_SIDE), pipeline.DEFAULT_MAX_SIDE), "smooth": (_number(0, 100), 1.0),

@@ -34,6 +34,7 @@ from .io.video import DEFAULT_MAX_PIXELS, DEFAULT_MAX_SIDE, MASK_FRAME_NAME
 from .options import (
     parse_background,
     parse_box,
+    parse_focal,
     parse_part_seeds,
     parse_parts,
     parse_point,
@@ -187,6 +188,7 @@ def _prior_figures(prior) -> dict[str, Any]:
             "max_rotation_deg": [round(float(a), 2) for a in turned.max(axis=1)],
             "centre_path_in_radii": [round(float(d), 3) for d in path],
             "camera_motion": prior.metadata.get("camera_motion"),
+            "focal_px": round(float(prior.intrinsics[0, 0]), 2),
             "tracks": prior.metadata.get("num_tracks"),
             "recovered_frames": len(prior.metadata.get("recovered_frames") or {}),
             "failed_frames": len(prior.metadata.get("failed_frames") or {})}
@@ -247,7 +249,12 @@ def demo(output: Annotated[Path, typer.Option("--output", "-o", help="Output fol
 
 Masks = Annotated[Optional[Path], typer.Option(help="Folder of per-frame mask images (default: found automatically).")]
 Depth = Annotated[Optional[Path], typer.Option(help="Folder of per-frame depth maps (16-bit PNG in mm, or .npy).")]
-Focal = Annotated[Optional[float], typer.Option(help="Focal length in pixels (default: 60° horizontal FOV).")]
+Focal = Annotated[Optional[str], typer.Option(
+    help="Focal length in pixels, or 'auto' to estimate it from how the object turns (kept at the default when "
+         "its motion does not tell). Default: a 60° horizontal field of view.")]
+EvalFocal = Annotated[str, typer.Option(
+    help="Focal length in pixels, or 'auto' to estimate it from how the object turns, as the paper's "
+         "reconstruction recovers its camera.")]
 Parts = Annotated[str, typer.Option(
     help="Number of moving rigid parts, or 'auto' to choose; above 1, a static group is added when found.")]
 Start = Annotated[int, typer.Option(help="First source frame to use.")]
@@ -311,6 +318,7 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
     from .source.extract import HINGE_NOTE
 
     parts_value = _parsed("--parts", parse_parts, parts)
+    focal = _parsed("--focal", parse_focal, focal)
     _check_max_side(max_side)
     if max_pixels < 16 * 16 * 2:
         raise InputError(f"--max-pixels must be at least {16 * 16 * 2}, got {max_pixels}")
@@ -328,6 +336,8 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
         session.output("masks", save_masks)
     session.figures["source"] = _prior_figures(prior)
     session.reporter.message(_prior_line(prior))
+    if prior.metadata.get("focal"):
+        session.reporter.message(f"focal length: {prior.metadata['focal']['note']}")
     recovered = prior.metadata.get("recovered_frames") or {}
     if recovered:
         hinged = sum(note.startswith(HINGE_NOTE) for note in recovered.values())
@@ -669,6 +679,7 @@ def reconstruct(source: Annotated[Path, typer.Argument(help="Video file or folde
         raise InputError(f"mask folder {masks} does not exist")
     options = ReconstructOptions(iterations=iterations, max_side=max_side)
     extract_options = ExtractOptions(parts=_parsed("--parts", parse_parts, parts))
+    focal = _parsed("--focal", parse_focal, focal)
     with _session("reconstruct", quiet, verbose, json_summary) as session:
         given = None if prior is None else read_prior(prior)
         result, used = pipeline.reconstruct(source, masks=masks, prior=given, focal=focal, start=start, end=end,
@@ -699,6 +710,7 @@ def reconstruct(source: Annotated[Path, typer.Argument(help="Video file or folde
 def eval_self_cmd(source: Annotated[Path, typer.Argument(help="Video file or folder of frames.")],
                   output: Annotated[Path, typer.Option("--output", "-o", help="Output folder.")],
                   masks: Masks = None, parts: Parts = "1", max_side: MaxSide = DEFAULT_MAX_SIDE,
+                  focal: EvalFocal = "auto",
                   target: Annotated[str, typer.Option(
                       help="What is moved: 'reconstruction' (the object fitted to the whole video) or 'frame0' "
                            "(source frame 0 lifted alone, the paper's protocol).")] = "reconstruction",
@@ -724,20 +736,21 @@ def eval_self_cmd(source: Annotated[Path, typer.Argument(help="Video file or fol
 
     _check_max_side(max_side)
     options = replace(EVAL_EXTRACT, parts=_parsed("--parts", parse_parts, parts))
+    focal_value = _parsed("--focal", parse_focal, focal)
     if masks is not None and not masks.is_dir():
         raise InputError(f"mask folder {masks} does not exist")
     prompt = _prompt("source", source_point, source_box, source_exclude)
     check_output_dir(output)
     with _session("eval-self", quiet, verbose, json_summary) as session:
         masks_out = None if save_masks is None else session.staged.folder(save_masks, MASK_FRAME_NAME)
-        metrics = eval_self(source, masks, session.staged.folder(output), max_side=max_side, options=options,
-                            target=target, prompt=prompt, masks_out=masks_out, reporter=session.reporter,
-                            reconstruct_options=reconstruct_options)
+        metrics = eval_self(source, masks, session.staged.folder(output), max_side=max_side, focal=focal_value,
+                            options=options, target=target, prompt=prompt, masks_out=masks_out,
+                            reporter=session.reporter, reconstruct_options=reconstruct_options)
         for kind, name in EVAL_SELF_OUTPUTS.items():
             session.output(kind, output / name)
         if save_masks is not None:
             session.output("masks", save_masks)
-        session.figures.update({k: metrics[k] for k in ("psnr", "ssim", "lpips", "motion_fidelity")})
+        session.figures.update({k: metrics[k] for k in ("psnr", "ssim", "lpips", "motion_fidelity", "focal_px")})
         if not json_summary:
             fidelity = "n/a" if metrics["motion_fidelity"] is None else f"{metrics['motion_fidelity']:.3f}"
             lpips = "skipped (no weights on this machine)" if metrics["lpips"] is None else f"{metrics['lpips']:.3f}"

@@ -12,8 +12,8 @@ from typing import Any
 
 from .camera import MAX_IMAGE_SIDE
 
-__all__ = ["MAX_PARTS", "parse_background", "parse_scene_background", "parse_size", "parse_parts", "parse_part_seeds",
-           "parse_point", "parse_box"]
+__all__ = ["MAX_PARTS", "parse_background", "parse_focal", "parse_scene_background", "parse_size", "parse_parts",
+           "parse_part_seeds", "parse_point", "parse_box"]
 
 #: Most rigid parts ``--parts`` may ask for.
 MAX_PARTS = 8
@@ -75,6 +75,19 @@ def parse_size(value: Any) -> tuple[int, int]:
     if not (w == int(w) and h == int(h) and 16 <= w <= MAX_IMAGE_SIDE and 16 <= h <= MAX_IMAGE_SIDE):
         raise ValueError(f"must be WIDTHxHEIGHT, integers within 16..{MAX_IMAGE_SIDE}")
     return int(w), int(h)
+
+
+def parse_focal(value: Any) -> float | str:
+    """``"auto"`` (estimate it) or a focal length in pixels, a positive number (or its digits)."""
+    if value == "auto":
+        return "auto"
+    try:
+        focal = float(value)
+    except (TypeError, ValueError):
+        focal = float("nan")
+    if isinstance(value, bool) or not (math.isfinite(focal) and focal > 0):
+        raise ValueError("must be 'auto' or a positive number of pixels")
+    return focal
 
 
 def parse_parts(value: Any) -> int | str:

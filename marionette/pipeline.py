@@ -51,8 +51,8 @@ from .transfer.velocity import integrate
 __all__ = ["extract", "source_masks", "reconstruct",
            "load_target", "relative_depth", "check_target", "check_part_seeds", "transfer", "output_cameras",
            "fit_view", "scene_compositor", "frames_outside", "render_frames", "render_video", "write_ply_frames",
-           "side_by_side", "write_side_by_side", "write_preview", "source_intrinsics", "DEFAULT_MAX_SIDE",
-           "PLY_FRAME_NAME"]
+           "side_by_side", "write_side_by_side", "write_preview", "source_intrinsics", "focal_setting",
+           "DEFAULT_MAX_SIDE", "PLY_FRAME_NAME"]
 
 
 def source_intrinsics(width: int, height: int, focal: float | None = None) -> np.ndarray:
@@ -61,6 +61,17 @@ def source_intrinsics(width: int, height: int, focal: float | None = None) -> np
         raise InputError(f"focal must be a positive number of pixels, got {focal}")
     f = focal_from_fov(width) if focal is None else float(focal)
     return np.array([[f, 0, (width - 1) / 2], [0, f, (height - 1) / 2], [0, 0, 1]])
+
+
+def focal_setting(focal: float | str | None, options: ExtractOptions, scale: float) -> tuple[float | None,
+                                                                                            ExtractOptions]:
+    """``focal`` of the original video (pixels, "auto" or None) → that of the frames read at ``scale``, and the
+    extraction settings: "auto" starts from the default and estimates it (``ExtractOptions.estimate_focal``)."""
+    if isinstance(focal, str):
+        if focal != "auto":
+            raise InputError(f"focal must be a positive number of pixels or 'auto', got {focal!r}")
+        return None, replace(options, estimate_focal=True)
+    return (None if focal is None else focal * scale), options
 
 
 def source_masks(video, masks: str | Path | None = None, prompt: Prompt | None = None, *, packed: bool = False,
@@ -83,7 +94,8 @@ def source_masks(video, masks: str | Path | None = None, prompt: Prompt | None =
 
 
 def extract(source: str | Path, *, masks: str | Path | None = None, depth: str | Path | None = None,
-            focal: float | None = None, max_side: int = DEFAULT_MAX_SIDE, max_pixels: int | None = DEFAULT_MAX_PIXELS,
+            focal: float | str | None = None, max_side: int = DEFAULT_MAX_SIDE,
+            max_pixels: int | None = DEFAULT_MAX_PIXELS,
             start: int = 0, end: int | None = None, stride: int = 1, options: ExtractOptions = ExtractOptions(),
             prompt: Prompt | None = None, masks_out: str | Path | None = None,
             reporter: Reporter | None = None) -> SpatPrior:
@@ -97,7 +109,8 @@ def extract(source: str | Path, *, masks: str | Path | None = None, depth: str |
     ``start``, ``end``, ``stride`` select frames; frames are downscaled to a
     long side of ``max_side``, and further (with a warning) when all frames
     together hold more than ``max_pixels`` pixels. ``focal`` is in pixels of
-    the original video; it is scaled with the frames. Frames are decoded on
+    the original video (it is scaled with the frames), or ``"auto"``: estimated
+    from the object's motion (:mod:`~marionette.source.focal`). Frames are decoded on
     demand and masks kept packed, so memory stays bounded for long videos.
     """
     reporter = reporter or Reporter(quiet=True)
@@ -110,14 +123,15 @@ def extract(source: str | Path, *, masks: str | Path | None = None, depth: str |
         write_masks(masks_out, mask_stack)
     depth_stack = None if depth is None else read_depths(depth, count=t, size=(w, h), indices=video.indices,
                                                          lazy=True)
-    k = source_intrinsics(w, h, None if focal is None else focal * video.scale)
+    focal, options = focal_setting(focal, options, video.scale)
+    k = source_intrinsics(w, h, focal)
     with contextlib.closing(video.frames):  # stop the decoder however extraction ends
         return extract_prior(video.frames, mask_stack, k, video.fps, depths=depth_stack, options=options,
                              reporter=reporter)
 
 
 def reconstruct(source: str | Path, *, masks: str | Path | None = None, prior: SpatPrior | None = None,
-                focal: float | None = None, start: int = 0, end: int | None = None, stride: int = 1,
+                focal: float | str | None = None, start: int = 0, end: int | None = None, stride: int = 1,
                 extract_options: ExtractOptions = ExtractOptions(), options=None,
                 reporter: Reporter | None = None):
     """Source video (file or frame folder) → the object as Gaussians at frame 0, and the prior used.
@@ -161,8 +175,9 @@ def reconstruct(source: str | Path, *, masks: str | Path | None = None, prior: S
     if not np.asarray(mask_stack).any():
         raise InputError("the object is not visible in any frame (every mask is empty)")
     if prior is None:
-        k = source_intrinsics(w, h, None if focal is None else focal * video.scale)
-        prior = extract_prior(video.frames, mask_stack, k, video.fps, options=extract_options, reporter=reporter)
+        focal, extract_options = focal_setting(focal, extract_options, video.scale)
+        prior = extract_prior(video.frames, mask_stack, source_intrinsics(w, h, focal), video.fps,
+                              options=extract_options, reporter=reporter)
     with reporter.stage("reconstruction", options.iterations) as progress:
         return reconstruct_object(video.frames, mask_stack, prior, frames_used=range(0, t, stride),
                                   options=options, progress=progress), prior

@@ -186,6 +186,7 @@ path = "disc.png"
     ("[defaults]\nmotion = 'camera'\n" + SOURCES + TARGETS, "motion must be one of"),
     ("[defaults]\nbackground = [300, 0, 0]\n" + SOURCES + TARGETS, "background must be"),
     ("[defaults]\nsize = '8x8'\n" + SOURCES + TARGETS, "size must be"),
+    ("[defaults]\nfocal = 'wide'\n" + SOURCES + TARGETS, "focal must be 'auto' or a positive number"),
     (SOURCES + TARGETS + "[[job]]\nsource = 'spin'\ntarget = 'box'\nparts = 2\n", "parts cannot be set here"),
     (SOURCES + TARGETS + "[[job]]\nsource = 'spin'\ntarget = 'teapot'\n", "target 'teapot' is not"),
     (SOURCES + TARGETS + "[[job]]\nsource = ['spin']\ntarget = 'box'\n", "source ['spin'] is not"),

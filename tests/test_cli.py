@@ -94,6 +94,9 @@ def test_render_command(tmp_path):
     (["extract", "{frames}", "-o", "{out}"], "--output must name a .npz file"),
     (["extract", "{frames}", "-o", "{tmp}/p.npz", "--masks", "{tmp}/nomasks"], "nomasks"),
     (["extract", "{frames}", "-o", "{tmp}/p.npz", "--depth", "{tmp}/nodepth"], "nodepth"),
+    (["extract", "{frames}", "-o", "{tmp}/p.npz", "--focal", "wide"], "--focal must be 'auto' or a positive"),
+    (["extract", "{frames}", "-o", "{tmp}/p.npz", "--focal", "0"], "--focal must be 'auto' or a positive"),
+    (["eval-self", "{frames}", "-o", "{tmp}/e", "--focal", "-5"], "--focal must be 'auto' or a positive"),
     (["render", "{tmp}/none.ply", "--camera", "{tmp}/none.json", "-o", "{tmp}/i.png"], "none.json"),
     (["transfer", "{prior}", "{target}", "-o", "{out}", "--loop", "bounce"], "--loop"),
     (["transfer", "{prior}", "{target}", "-o", "{out}", "--anchor", "moon"], "--anchor"),
@@ -203,6 +206,11 @@ def test_extract_and_run_on_a_synthetic_video(tmp_path, target_png):
     assert cv2.imread(str(tmp_path / "p.png")).shape[0] > 100
     assert main(["extract", str(frames), "--masks", str(masks), "-o", str(tmp_path / "q.npz"), "-q",
                  "--parts", "1", "--start", "2", "--stride", "2", "--no-recover-frames", "--strict-tracks"]) == 0
+    assert main(["extract", str(frames), "--masks", str(masks), "-o", str(tmp_path / "f.npz"), "-q",
+                 "--focal", "auto"]) == 0
+    focal = read_prior(tmp_path / "f.npz").metadata["focal"]
+    # An in-plane turn leaves no trace of the focal length: the default (60° wide) is kept, and said so.
+    assert not focal["measured"] and focal["focal_px"] == pytest.approx(prior.intrinsics[0, 0], abs=0.01)
     part = read_prior(tmp_path / "q.npz")
     assert part.num_frames == 4 and part.fps == pytest.approx(prior.fps / 2)
     assert prior.metadata["options"]["recover_frames"] and not part.metadata["options"]["recover_frames"]

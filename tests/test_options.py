@@ -3,7 +3,7 @@
 import pytest
 
 from marionette.camera import MAX_IMAGE_SIDE
-from marionette.options import MAX_PARTS, parse_background, parse_part_seeds, parse_parts, parse_size
+from marionette.options import MAX_PARTS, parse_background, parse_focal, parse_part_seeds, parse_parts, parse_size
 
 
 @pytest.mark.parametrize("value, expected", [
@@ -40,6 +40,17 @@ def test_parts(value, expected):
 def test_bad_part_counts_are_refused(value):
     with pytest.raises(ValueError, match="must be 'auto' or an integer"):
         parse_parts(value)
+
+
+@pytest.mark.parametrize("value, expected", [("auto", "auto"), ("850", 850.0), (612.5, 612.5), ("1e3", 1000.0)])
+def test_focal_lengths(value, expected):
+    assert parse_focal(value) == expected
+
+
+@pytest.mark.parametrize("value", ["wide", "0", -3, "nan", "inf", True, None, ""])
+def test_bad_focal_lengths_are_refused(value):
+    with pytest.raises(ValueError, match="must be 'auto' or a positive number"):
+        parse_focal(value)
 
 
 def test_part_seeds_from_the_command_line_and_from_a_job_file_agree():

@@ -76,7 +76,8 @@ def self_target(image: np.ndarray, mask: np.ndarray, prior: SpatPrior, *, inset:
 
 
 def eval_self(source: str | Path, masks: str | Path | None = None, output_dir: str | Path = "eval-self", *,
-              max_side: int = pipeline.DEFAULT_MAX_SIDE, options: ExtractOptions = EVAL_EXTRACT,
+              max_side: int = pipeline.DEFAULT_MAX_SIDE, focal: float | str | None = "auto",
+              options: ExtractOptions = EVAL_EXTRACT,
               fidelity: bool = True, target: str = "reconstruction",
               reconstruct_options: ReconstructOptions = ReconstructOptions(),
               prompt: Prompt | None = None, masks_out: str | Path | None = None,
@@ -95,6 +96,10 @@ def eval_self(source: str | Path, masks: str | Path | None = None, output_dir: s
         ``side_by_side.mp4`` (masked source | render) and ``metrics.png``
         (metrics over time).
     max_side : frames are downscaled to this long side (intrinsics follow).
+    focal : the source camera's focal length in pixels of the original video;
+        ``"auto"`` (default) estimates it from the object's motion, as the
+        paper's reconstruction recovers its camera from the video
+        (:mod:`~marionette.source.focal`); None: a 60° horizontal field of view.
     options : extraction settings; by default the prior keeps the camera's
         own motion (:data:`EVAL_EXTRACT`).
     fidelity : also report :func:`~marionette.eval.fidelity.motion_fidelity`
@@ -125,7 +130,8 @@ def eval_self(source: str | Path, masks: str | Path | None = None, output_dir: s
     mask_stack = pipeline.source_masks(video, masks, prompt, reporter=reporter)
     if masks_out is not None:
         write_masks(masks_out, mask_stack)
-    prior = extract_prior(frames, mask_stack, pipeline.source_intrinsics(w, h), video.fps, options=options,
+    focal_px, options = pipeline.focal_setting(focal, options, video.scale)
+    prior = extract_prior(frames, mask_stack, pipeline.source_intrinsics(w, h, focal_px), video.fps, options=options,
                           reporter=reporter)
     out.mkdir(exist_ok=True)
     files = {kind: out / name for kind, name in EVAL_SELF_OUTPUTS.items()}
@@ -167,6 +173,7 @@ def eval_self(source: str | Path, masks: str | Path | None = None, output_dir: s
                      "moved by its poses") + "; rendered with the source camera on white; compared with source "
                     "frames masked onto white, whole frames",
         "camera_motion": prior.metadata.get("camera_motion"),
+        "focal_px": float(prior.intrinsics[0, 0]), "focal": prior.metadata.get("focal"),
     }
     if fidelity:
         with reporter.stage("motion fidelity", 1):

@@ -41,6 +41,7 @@ from ..prior import CAMERA_EXTRA, SpatPrior
 from ..progress import ProgressCallback, Reporter
 from .camera_motion import estimate_camera_motion, to_world
 from .depth import DepthMaps, poses_from_depth
+from .focal import FOCAL_SCALES, estimate_focal
 from .foreground import auto_masks
 from .hinge import fit_hinge
 from .parts import OFF_OBJECT, OUTLIER, STATIC, segment_parts
@@ -84,6 +85,12 @@ class ExtractOptions:
         least (a lid on a box, a door on its frame) as a hinge on it
         (:mod:`~marionette.source.hinge`) when that explains its tracks as
         well as its free 6-DoF poses do.
+    estimate_focal : bool
+        Estimate the focal length from the tracks (:mod:`~marionette.source.focal`),
+        starting from ``camera_K``'s; the prior's intrinsics carry the result and
+        its metadata says under ``focal`` whether the tracks determined it (an
+        object that only translates or turns in the image plane leaves the
+        given one). Not with depth maps.
     strict_tracks : bool
         End a track where its window stops matching its seed window instead
         of anchoring it again (``track(..., strict=True)``): no drift, so
@@ -113,6 +120,7 @@ class ExtractOptions:
     camera_motion: bool = True
     recover_frames: bool = True
     joints: bool = True
+    estimate_focal: bool = False
     strict_tracks: bool = False
     relief: float = 1.0
     motion_threshold: float = 0.5
@@ -331,6 +339,14 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
         tracks = track(frames, masks, spacing=options.spacing, window=options.window, levels=options.levels,
                        fb_threshold=options.fb_threshold, reseed_every=options.reseed_every,
                        min_eigen=options.min_eigen, strict=options.strict_tracks, progress=progress)
+    focal = None
+    if options.estimate_focal and depths is None:
+        with stages("focal", "focal length", len(FOCAL_SCALES) + 1) as progress:
+            estimate = estimate_focal(tracks, masks[0], k, options=options.rigid, progress=progress)
+        focal = {"focal_px": round(estimate.focal, 2), "measured": estimate.measured,
+                 "given_px": round(float(k[0, 0]), 2), "note": estimate.note}
+        k = k.copy()
+        k[:2, :2] *= estimate.focal / k[0, 0]  # fx and fy alike, the principal point kept
     whole = (_depth_shape(masks[0], depths[0], k, options.relief) if depths is not None
              else ShapePrior.inflate(masks[0], k, relief=options.relief))
     camera, camera_note, camera_model = None, "not estimated", None
@@ -352,7 +368,7 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
     metadata = {"method": "lk-tracks+" + ("depth-umeyama" if depths is not None else "inflated-shape+pnp+ba"),
                 "options": dataclasses.asdict(options), "num_tracks": tracks.num_tracks,
                 "camera_motion": camera_note, "camera_model": camera_model,
-                "timings": stages.timings}
+                **({} if focal is None else {"focal": focal}), "timings": stages.timings}
     common = dict(fps=fps, image_size=(w, h), intrinsics=k)
     extras = {"tracks_uv": tracks.uv, "tracks_visible": tracks.visible}
 

@@ -1,0 +1,160 @@
+"""The focal length estimated from the object's motion (``--focal auto``), against the truth and on real clips.
+
+Synthetic scenes (``make_scene``, focal length known): the tracks of each
+motion and seed, and :func:`~marionette.source.focal.estimate_focal` started
+from the true focal length times each ``--starts`` factor; the estimate over
+the truth, whether the tracks determined it, and the seconds. Real clips
+(``../shared/data``, skipped when absent): ``marionette extract --focal auto``
+(``pipeline.extract``) with their masks, from the default 60° field of view;
+what it estimated and the focal stage's seconds. A plot of the costs over the
+candidates per case. Writes ``docs/benchmarks/focal.md`` and
+``docs/images/focal_costs.png``.
+
+    python benchmarks/bench_focal.py [--seeds 3] [--frames 48] [--size 320x240] [--starts 0.7,1.4]
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from marionette import pipeline
+from marionette.source.focal import FOCAL_SCALES, estimate_focal
+from marionette.source.tracks import track
+from marionette.synthetic import make_scene
+
+MOTIONS = ("outofplane", "oscillation", "translation", "inplane")
+ROOT = Path(__file__).resolve().parents[1]
+OUT = ROOT / "docs" / "benchmarks" / "focal.md"
+FIGURE = ROOT / "docs" / "images" / "focal_costs.png"
+DATA = ROOT.parent / "shared" / "data" / "videos"
+CLIPS = ("davis_car-turn", "davis_car-shadow", "davis_train")
+
+
+READING = """\
+Reading (2026-12-05). Where the object turns in depth the cost has one clear valley and the estimate lands
+within 15 % of the truth from a start 30 % too short or 40 % too long: on the out-of-plane turns 3-14 % short
+of it, closer from the long start than from the short one (the fit it starts from carries the start's shape
+guess), on the oscillations within 8 % either way. Where the object slides or turns in the image plane the
+cost is flat to within half a percent and the start is kept; a flat curve's noise can dip by more than 1 %
+next to its lowest point (inplane, seed 2, from 0.7x: 1.6 % and 4.0 %), so a valley also has to climb all the
+way out on both sides. On the real clips the
+estimate changes car-turn from 60° to 50° and train from 60° to 70° (its four cars fitted as one body here,
+their common motion along the curve); what that does to Table 1 is in `table1.md` (car-turn 0.974 / 0.029 ->
+0.977 / 0.024 SSIM / LPIPS, train +0.28 dB). The search costs one pose fit and seven bundle adjustments: 3-11 s
+on these 48-frame 320x240 scenes (in-plane turns, with many long tracks, the most) and 3-9 s on the 40- and
+80-frame 854x480 clips."""
+
+
+def fov(focal: float, width: float) -> float:
+    """Horizontal field of view (degrees) of a focal length (pixels) at an image width (pixels)."""
+    return float(2 * np.degrees(np.arctan(0.5 * width / focal)))
+
+
+def plot(curves: dict, path: Path) -> None:
+    """Cost over the candidate focal lengths (over the true one), normalised to its minimum, per case:
+    ``curves[label] = (start factor, costs)``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 3.6))
+    for label, (factor, costs) in curves.items():
+        ax.plot(factor * FOCAL_SCALES, costs / np.nanmin(costs), marker="o", label=label)
+    ax.axvline(1.0, color="grey", lw=0.8)
+    ax.set_xscale("log")
+    ax.set_ylim(0.99, 1.3)
+    ax.set_xlabel("candidate focal length / true focal length")
+    ax.set_ylabel("reprojection cost / its minimum")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=3)
+    ap.add_argument("--frames", type=int, default=48)
+    ap.add_argument("--size", default="320x240")
+    ap.add_argument("--starts", default="0.7,1.4", help="start focal lengths, as factors of the true one")
+    ap.add_argument("--out", type=Path, default=OUT)
+    args = ap.parse_args()
+    size = tuple(int(v) for v in args.size.split("x"))
+    starts = [float(v) for v in args.starts.split(",")]
+    rows, curves = [], {}
+    for motion in MOTIONS:
+        for seed in range(args.seeds):
+            scene = make_scene(motion, seed=seed, num_frames=args.frames, size=size)
+            tracks = track(scene.frames, scene.masks)
+            truth = scene.camera.K[0, 0]
+            for factor in starts:
+                k = scene.camera.K.copy()
+                k[:2, :2] *= factor
+                begin = time.perf_counter()
+                estimate = estimate_focal(tracks, scene.masks[0], k)
+                seconds = time.perf_counter() - begin
+                rows.append((motion, seed, factor, estimate.focal / truth, estimate.measured, seconds))
+                if seed == 0:
+                    curves[f"{motion}, start x{factor:g}"] = (factor, estimate.costs)
+                print(f"{motion:12s} seed {seed} start x{factor:g}: {estimate.note} -> {estimate.focal / truth:.3f} "
+                      f"of the truth, {seconds:.1f} s", flush=True)
+
+    real = []
+    for clip in CLIPS if DATA.is_dir() else ():
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            prior = pipeline.extract(DATA / clip / "frames", masks=DATA / clip / "masks", focal="auto")
+        focal, width = prior.metadata["focal"], float(prior.image_size[0])
+        real.append((clip, fov(focal["given_px"], width), fov(focal["focal_px"], width), focal["measured"],
+                     prior.metadata["timings"]["focal"], focal["note"]))
+        print(f"{clip}: {focal['note']} ({real[-1][4]:.1f} s)", flush=True)
+    plot(curves, FIGURE)
+
+    lines = [
+        "# Focal length from the object's motion",
+        "",
+        f"`python benchmarks/bench_focal.py --seeds {args.seeds} --frames {args.frames} --size {args.size} "
+        f"--starts {args.starts}` on {platform.machine()}, 2 cores. `marionette.source.focal.estimate_focal` "
+        "(`--focal auto`): one pose fit at the start focal length, then a bundle adjustment per candidate "
+        f"({len(FOCAL_SCALES)} candidates, 0.5-2x the start) carried over by scaling the camera-frame depths, and a "
+        "parabola through the best three; the start is kept when the cost 26 % off the best is less than 1 % "
+        "higher, or does not climb steadily away from it (the focal length leaves no trace in the tracks).",
+        "",
+        "Synthetic scenes (`make_scene`, true focal length known, 60° wide): the estimate over the truth, per "
+        "start; *measured*: whether the tracks determined it (if not, the start is kept, so the ratio is the "
+        "start's).",
+        "",
+        "| motion | start | estimate / truth, per seed | median | measured | seconds (mean) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for motion in MOTIONS:
+        for factor in starts:
+            sel = [r for r in rows if r[0] == motion and r[2] == factor]
+            lines.append(f"| {motion} | x{factor:g} | {' / '.join(f'{r[3]:.3f}' for r in sel)} | "
+                         f"{np.median([r[3] for r in sel]):.3f} | {sum(r[4] for r in sel)} of {len(sel)} | "
+                         f"{np.mean([r[5] for r in sel]):.1f} |")
+    lines += ["", f"![cost over the candidates, seed 0, against the true focal length](../images/{FIGURE.name})", ""]
+    if real:
+        lines += ["Real clips (`pipeline.extract(..., focal=\"auto\")` with their masks, from the default 60°); "
+                  "their true focal lengths are unknown.", "",
+                  "| clip | start (°) | estimate (°) | measured | seconds | note |", "|---|---|---|---|---|---|"]
+        lines += [f"| {c} | {a:.0f} | {b:.1f} | {m} | {s:.1f} | {n} |" for c, a, b, m, s, n in real]
+    else:
+        lines += [f"Real clips: skipped ({DATA} not found)."]
+    lines += ["", READING]
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text("\n".join(lines) + "\n")
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
