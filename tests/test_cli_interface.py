@@ -135,6 +135,13 @@ def test_eval_self_command_writes_the_table_1_outputs(tmp_path, clip, capsys, mo
         ("side_by_side", "side_by_side.mp4"), ("metrics_plot", "metrics.png"))}
     assert all(Path(path).is_file() for path in summary["outputs"].values())
     assert len(read_video(out / "video.mp4").frames) == 12
+    # The focal length is estimated by default; a sliding object leaves the 60° start (128 px wide: 110.85 px).
+    assert metrics["focal"]["measured"] is False and summary["figures"]["focal_px"] == pytest.approx(110.85, abs=0.01)
+    given = tmp_path / "given"
+    assert main(["eval-self", str(clip / "frames"), "--masks", str(clip / "masks"), "-o", str(given), "-q",
+                 "--target", "frame0", "--focal", "150"]) == 0
+    metrics = json.loads((given / "metrics.json").read_text())
+    assert metrics["focal"] is None and metrics["focal_px"] == 150.0
     assert main(["eval-self", str(clip / "frames"), "-o", str(out), "--max-side", "4"]) == 2
     assert "--max-side" in one_error_line(capsys)
 
