@@ -58,10 +58,13 @@ def test_the_focal_length_of_a_turning_object_is_found_from_a_wrong_start(turnin
     seen = []
     estimate = estimate_focal(tracks, scene.masks[0], start, progress=lambda done, total: seen.append((done, total)))
     assert estimate.measured and "estimated" in estimate.note
-    # Measured: 0.90-0.97 of the truth on the 48-frame benchmark scenes (docs/benchmarks/focal.md).
+    # Measured here: 0.94-0.95 of the truth from either start; 0.89-0.95 on the 48-frame benchmark scenes
+    # (docs/benchmarks/focal.md).
     assert abs(estimate.focal / truth - 1) < 0.15, estimate.focal / truth
     assert abs(estimate.focal / start[0, 0] - 1) > 0.15  # it moved
-    assert len(estimate.costs) == len(FOCAL_SCALES) and seen[-1] == (len(FOCAL_SCALES) + 1,) * 2
+    assert "2 searches" in estimate.note  # it moved more than 5 %: searched again from there
+    assert len(estimate.costs) == len(FOCAL_SCALES) and seen[-1] == (2 * len(FOCAL_SCALES) + 2,) * 2
+    assert [done for done, _ in seen] == sorted(done for done, _ in seen)
 
 
 def test_a_translating_object_keeps_the_given_focal_length():
