@@ -21,13 +21,13 @@ stays where it starts), so it is searched in one dimension instead:
 4. the first fit carries the start's shape guess, which pulls the answer
    towards the start, so where it moved the focal length a second search
    starts from its answer (car-turn: 60° -> 50° -> 42°; the synthetic turns
-   end within a few percent of where they would from any start).
+   end within 3.5 % of where they end from another start).
 
 When the cost barely changes next to its best candidate, or does not climb
 steadily away from it on both sides (a translating or in-plane turning
 object: the focal leaves no trace in the tracks, and what is left is noise),
-the given focal is kept. With several parts the fit follows the body's dominant rigid motion
-(its RANSAC inliers).
+the given focal is kept. With several parts the fit follows the body's
+dominant rigid motion (its RANSAC inliers).
 """
 
 from __future__ import annotations
