@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from marionette import pipeline
+from marionette.camera import fov_from_focal
 from marionette.source.focal import FOCAL_SCALES, estimate_focal
 from marionette.source.tracks import track
 from marionette.synthetic import make_scene
@@ -51,11 +52,6 @@ their common motion along the curve); what that does to Table 1 is in `table1.md
 0.979 / 0.023 SSIM / LPIPS, train -0.16 dB). The search costs a pose fit and seven bundle adjustments, twice
 where the focal length moved: 6-8 s on these 48-frame 320x240 scenes where it is found, 3-12 s where it is
 kept (in-plane turns, with many long tracks, the most), and up to 17 s on the 80-frame 854x480 clips."""
-
-
-def fov(focal: float, width: float) -> float:
-    """Horizontal field of view (degrees) of a focal length (pixels) at an image width (pixels)."""
-    return float(2 * np.degrees(np.arctan(0.5 * width / focal)))
 
 
 def plot(curves: dict, path: Path) -> None:
@@ -116,7 +112,8 @@ def main() -> None:
             warnings.simplefilter("ignore")
             prior = pipeline.extract(DATA / clip / "frames", masks=DATA / clip / "masks", focal="auto")
         focal, width = prior.metadata["focal"], float(prior.image_size[0])
-        real.append((clip, fov(focal["given_px"], width), fov(focal["focal_px"], width), focal["measured"],
+        real.append((clip, fov_from_focal(width, focal["given_px"]), fov_from_focal(width, focal["focal_px"]),
+                     focal["measured"],
                      prior.metadata["timings"]["focal"], focal["note"]))
         print(f"{clip}: {focal['note']} ({real[-1][4]:.1f} s)", flush=True)
     plot(curves, FIGURE)

@@ -24,7 +24,6 @@ import argparse
 import csv
 import dataclasses
 import json
-import math
 import os
 import platform
 import time
@@ -317,6 +316,8 @@ fidelity."""
 
 
 def report(results: dict[str, dict[str, dict]], out: Path) -> str:
+    from marionette.camera import fov_from_focal
+
     lines = [
         "# Table 1: SpaT prior quality (self-transfer), real clips",
         "",
@@ -362,8 +363,7 @@ def report(results: dict[str, dict[str, dict]], out: Path) -> str:
             fidelity = "–" if m.get("motion_fidelity") is None else f"{m['motion_fidelity']:.3f}"
             span = f"{m['psnr_first']:.1f} → {m['psnr_last']:.1f}" if "psnr_first" in m else "–"
             rec = "–" if m.get("reconstruction_seconds") is None else f"{m['reconstruction_seconds']:.0f}"
-            view = ("–" if m.get("focal_px") is None else
-                    f"{2 * math.degrees(math.atan(0.5 * m['width'] / m['focal_px'])):.0f}")
+            view = "–" if m.get("focal_px") is None else f"{fov_from_focal(m['width'], m['focal_px']):.0f}"
             lines.append(f"| {category} | {clip} | {target} | {parts} | {m['scored']} | {m['psnr']:.2f} "
                          f"| {m['masked_psnr']:.2f} | {m['ssim']:.3f} | {lpips} | {fidelity} | {paper_text} "
                          f"| {v['psnr']} | {v['ssim']} | {v['lpips']} | {span} | {view} | {rec} "

@@ -16,7 +16,7 @@ import numpy as np
 
 from .errors import InputError
 
-__all__ = ["Camera", "focal_from_fov", "read_camera_json", "MAX_IMAGE_SIDE"]
+__all__ = ["Camera", "focal_from_fov", "fov_from_focal", "read_camera_json", "MAX_IMAGE_SIDE"]
 
 #: Largest image side any command accepts (a guard against absurd sizes).
 MAX_IMAGE_SIDE = 8192
@@ -27,6 +27,11 @@ MAX_JSON_BYTES = 64 << 20
 def focal_from_fov(width: int, fov_deg: float = 60.0) -> float:
     """Focal length in pixels for a horizontal field of view in degrees."""
     return 0.5 * width / math.tan(math.radians(fov_deg) / 2.0)
+
+
+def fov_from_focal(width: float, focal: float) -> float:
+    """Horizontal field of view in degrees of a focal length in pixels (the inverse of :func:`focal_from_fov`)."""
+    return math.degrees(2.0 * math.atan(0.5 * width / focal))
 
 
 @dataclass(frozen=True)

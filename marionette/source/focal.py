@@ -37,6 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..camera import fov_from_focal
 from .bundle import bundle_adjust, huber_cost
 from .rigid import RigidOptions, ShapePrior, fit_rigid
 from .tracks import Tracks
@@ -144,14 +145,11 @@ def _search(tracks: Tracks, mask: np.ndarray, k: np.ndarray, options: RigidOptio
         costs[i] = _cost_at(scale, k, fit.poses, fit.points[sample], uv, observed, free)
         progress(i + 2)
     best = int(np.argmin(costs))
-    log_scales = np.log(FOCAL_SCALES)
     if best in (0, len(costs) - 1):
         scale = float(FOCAL_SCALES[best])
-        at_edge = True
     else:
         around = slice(best - 1, best + 2)
-        scale = float(np.exp(_vertex(log_scales[around], costs[around])))
-        at_edge = False
+        scale = float(np.exp(_vertex(np.log(FOCAL_SCALES[around]), costs[around])))
     neighbours = [costs[j] for j in (best - 1, best + 1) if 0 <= j < len(costs)]
     rise = float(np.mean(neighbours) / costs[best] - 1) if np.isfinite(costs[best]) and costs[best] > 0 else 0.0
     # One valley: the cost climbs all the way out on either side (noise over a flat curve does not).
@@ -162,13 +160,12 @@ def _search(tracks: Tracks, mask: np.ndarray, k: np.ndarray, options: RigidOptio
         return FocalEstimate(given, False, FOCAL_SCALES.copy(), costs,
                              f"kept {given:.0f} px ({_fov(given, k):.0f}° wide): the tracks barely tell focal "
                              f"lengths apart ({why})")
-    edge = " (the edge of the search)" if at_edge else ""
-    return FocalEstimate(given * scale, True, FOCAL_SCALES.copy(), costs, edge)
+    return FocalEstimate(given * scale, True, FOCAL_SCALES.copy(), costs, "")
 
 
 def _fov(focal: float, k: np.ndarray) -> float:
-    """Horizontal field of view (degrees) of a focal length (pixels) for the image width ``k`` implies."""
-    return float(2 * np.degrees(np.arctan(0.5 * (2 * k[0, 2] + 1) / focal)))
+    """Horizontal field of view (degrees) of a focal length (pixels) at the image width ``k``'s centre implies."""
+    return fov_from_focal(2 * k[0, 2] + 1, focal)
 
 
 def estimate_focal(tracks: Tracks, mask: np.ndarray, k: np.ndarray, *, options: RigidOptions = RigidOptions(),
@@ -217,8 +214,9 @@ def estimate_focal(tracks: Tracks, mask: np.ndarray, k: np.ndarray, *, options: 
         second = _search(tracks, mask, again, options, seed, lambda done: report(done, steps))
         if second.measured:
             scales = second.scales * first.focal / given
-            last, searches = FocalEstimate(second.focal, True, scales, second.costs, second.note), 2
+            last, searches = FocalEstimate(second.focal, True, scales, second.costs, ""), 2
     report(2 * steps)
+    edge = " (the edge of the search)" if np.argmin(last.costs) in (0, len(last.costs) - 1) else ""
     return FocalEstimate(last.focal, True, last.scales, last.costs,
-                         f"estimated {last.focal:.0f} px ({_fov(last.focal, k):.0f}° wide){last.note}, from "
+                         f"estimated {last.focal:.0f} px ({_fov(last.focal, k):.0f}° wide){edge}, from "
                          f"{given:.0f} px ({searches} search{'es' if searches > 1 else ''})")
