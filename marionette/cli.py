@@ -272,10 +272,12 @@ RecoverFrames = Annotated[bool, typer.Option(
 Joints = Annotated[bool, typer.Option(
     help="Fit a part that turns about a fixed axis of the part that turns least (a lid on a box, a door on its "
          "frame) as a hinge on it, when that explains its tracks as well as a free motion (multi-part extraction).")]
-StrictTracks = Annotated[bool, typer.Option(
-    help="End a track where its window stops matching the one it was seeded in (no drift) instead of anchoring "
-         "it again: poses several times closer on clean footage; on compressed or blurred clips tracks grow short "
-         "and parts and hard frames suffer.")]
+StrictTracks = Annotated[Optional[bool], typer.Option(
+    "--strict-tracks/--anchored-tracks", show_default="auto",
+    help="Strict: a track ends where its window stops matching the one it is aligned against and a fresh one "
+         "starts there (each track one surface point: poses several times closer on clean footage; compressed or "
+         "blurred clips cut them into pieces a frame or two long). Anchored: the track is aligned again from "
+         "there. By default strict while 70 % of the windows keep matching (one-part extraction), else anchored.")]
 SourcePoint = Annotated[Optional[list[str]], typer.Option(
     help="A point X,Y on the object in the first source frame used, in its original pixels (repeatable): the "
          "masks follow that object instead of the automatic choice.")]
@@ -310,7 +312,7 @@ def _check_max_side(max_side: int) -> None:
 
 def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, stride: int, max_side: int,
              max_pixels: int, smooth: float, plot, prompt: Prompt | None, save_masks: Path | None, session: _Session,
-             recover_frames: bool = True, joints: bool = True, strict_tracks: bool = False):
+             recover_frames: bool = True, joints: bool = True, strict_tracks: bool | None = None):
     """Shared by ``extract`` and ``run``: check the options, extract, draw the plot."""
     from . import pipeline
     from .plot import plot_prior
@@ -326,7 +328,7 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
         raise InputError(f"--smooth must be within 0..100, got {smooth}")
     _output_file(plot, ".png", "--plot")
     options = ExtractOptions(parts=parts_value, smoothing=smooth, recover_frames=recover_frames, joints=joints,
-                             strict_tracks=strict_tracks)
+                             strict_tracks="auto" if strict_tracks is None else strict_tracks)
     prior = pipeline.extract(source, masks=masks, depth=depth, focal=focal, max_side=max_side,
                              max_pixels=max_pixels, start=start, end=end, stride=stride, options=options,
                              prompt=prompt, reporter=session.reporter,
@@ -366,7 +368,7 @@ def extract(source: Annotated[Path, typer.Argument(help="Video file or folder of
             max_pixels: MaxPixels = DEFAULT_MAX_PIXELS, smooth: Smooth = 1.0, plot: Plot = None,
             source_point: SourcePoint = None, source_box: SourceBox = None, source_exclude: SourceExclude = None,
             save_masks: SaveMasks = None, recover_frames: RecoverFrames = True, joints: Joints = True,
-            strict_tracks: StrictTracks = False,
+            strict_tracks: StrictTracks = None,
             quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False, config: Config = None) -> None:
     """Extract the SpaT prior (per-part rigid motion) from a source video."""
     _output_file(output, ".npz", "--output")
@@ -605,7 +607,7 @@ def run(source: Annotated[Path, typer.Argument(help="Video file or folder of fra
         max_pixels: MaxPixels = DEFAULT_MAX_PIXELS, smooth: Smooth = 1.0, plot: Plot = None,
         source_point: SourcePoint = None, source_box: SourceBox = None, source_exclude: SourceExclude = None,
         save_masks: SaveMasks = None, recover_frames: RecoverFrames = True, joints: Joints = True,
-        strict_tracks: StrictTracks = False, frames: Frames = None,
+        strict_tracks: StrictTracks = None, frames: Frames = None,
         speed: Speed = 1.0, loop: Loop = "hold",
         reverse: Reverse = False,
         rotation_scale: RotationScale = 1.0, translation_scale: TranslationScale = 1.0, fps: Fps = None,

@@ -214,7 +214,8 @@ def test_extract_and_run_on_a_synthetic_video(tmp_path, target_png):
     part = read_prior(tmp_path / "q.npz")
     assert part.num_frames == 4 and part.fps == pytest.approx(prior.fps / 2)
     assert prior.metadata["options"]["recover_frames"] and not part.metadata["options"]["recover_frames"]
-    assert part.metadata["options"]["strict_tracks"] and not prior.metadata["options"]["strict_tracks"]
+    assert part.metadata["options"]["strict_tracks"] is True and prior.metadata["options"]["strict_tracks"] == "auto"
+    assert part.metadata["tracks"]["strict"] and 0 < prior.metadata["tracks"]["anchor_match"] <= 1  # tried
     assert main(["run", str(frames), str(target_png), "--masks", str(masks), "-o", str(tmp_path / "r.mp4"),
                  "-q"]) == 0
     assert read_video(tmp_path / "r.mp4").frames.shape[0] == 10

@@ -162,14 +162,17 @@ def rotation_gap_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.degrees(np.arccos(np.clip((np.trace(rel, axis1=-2, axis2=-1) - 1) / 2, -1.0, 1.0)))
 
 
-@pytest.mark.parametrize("motion, frames, size", [("outofplane", 16, (160, 120)), ("hinge", 20, (200, 150))])
-def test_parts_auto_does_not_follow_the_blas_kernel_or_thread_count(motion, frames, size, tmp_path):
+@pytest.mark.parametrize("motion, frames, size, parts", [("outofplane", 16, (160, 120), "auto"),
+                                                        ("hinge", 20, (200, 150), "auto"),
+                                                        ("translation", 16, (160, 120), "1")])
+def test_parts_auto_does_not_follow_the_blas_kernel_or_thread_count(motion, frames, size, parts, tmp_path):
     """Issue 14: the same ``extract --parts auto`` under 1 and 2 threads and other BLAS kernels.
 
     The part count (and how it was chosen) must agree everywhere, and the poses within 0.05°: a one-part
-    motion's, and the hinge's still body and lid. The lid's free poses do differ (PnP RANSAC keeps 5 or 6
-    inliers on its few tracks, by the last bits), and the hinge fit of each used to settle in a minimum
-    of its own, 46° apart on this clip; fitted from two starts, both reach the best one, near the truth.
+    motion's, and the hinge's still body and lid; with ``--parts 1``, the choice of strict tracks too. The
+    lid's free poses do differ (PnP RANSAC keeps 5 or 6 inliers on its few tracks, by the last bits), and the
+    hinge fit of each used to settle in a minimum of its own, 46° apart on this clip; fitted from two starts,
+    both reach the best one, near the truth.
     """
     scene = make_scene(motion, seed=0, num_frames=frames, size=size)
     write_video(tmp_path / "frames", scene.frames, scene.fps)
@@ -177,7 +180,7 @@ def test_parts_auto_does_not_follow_the_blas_kernel_or_thread_count(motion, fram
     for i, m in enumerate(scene.masks):
         cv2.imwrite(str(tmp_path / "masks" / f"{i:05d}.png"), m.astype(np.uint8) * 255)
     outs = [tmp_path / f"prior{run}.npz" for run in range(len(KERNELS))]
-    cli(*((["extract", tmp_path / "frames", "--masks", tmp_path / "masks", "--parts", "auto", "-o", out], env)
+    cli(*((["extract", tmp_path / "frames", "--masks", tmp_path / "masks", "--parts", parts, "-o", out], env)
           for out, env in zip(outs, KERNELS)))
     priors = []
     for out in outs:
@@ -188,7 +191,8 @@ def test_parts_auto_does_not_follow_the_blas_kernel_or_thread_count(motion, fram
     assert meta["num_parts"] == truth
     for other, other_meta in priors[1:]:
         assert other_meta["num_parts"] == meta["num_parts"]
-        assert other_meta["part_selection_note"] == meta["part_selection_note"]
+        assert other_meta.get("part_selection_note") == meta.get("part_selection_note")
+        assert other_meta["tracks"] == meta["tracks"]
         if motion == "hinge":  # parts in the order of how far they turn: the still body, then the lid
             order = np.argsort(rotation_gap_deg(np.eye(4), poses[:, -1]))
             other_order = np.argsort(rotation_gap_deg(np.eye(4), other[:, -1]))

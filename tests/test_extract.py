@@ -135,8 +135,8 @@ def test_progress_is_reported_per_stage():
 # Limits: the worst of seeds 0-2 at this small size (24 frames, 240x180) with a margin; the benchmark
 # (docs/benchmarks/extract.md) measures the targets on longer, larger clips.
 E2E_LIMITS = {  # motion: (median rotation error deg, median centroid error % of radius)
-    "translation": (2.5, 9.0),
-    "inplane": (1.5, 15.0),
+    "translation": (1.0, 9.0),
+    "inplane": (1.0, 15.0),
     "outofplane": (1.5, 22.0),
     "oscillation": (1.75, 11.0),
 }
@@ -154,6 +154,23 @@ def test_synthetic_scenes(motion):
     assert np.median(rot[1:]) < rot_limit, f"median rotation error {np.median(rot[1:]):.2f} deg"
     assert np.median(cent[1:]) < cent_limit, f"median centroid error {np.median(cent[1:]):.1f} %"
     np.testing.assert_allclose(prior.poses[0, 0], np.eye(4), atol=1e-12)
+
+
+def test_clean_footage_gets_strict_tracks():
+    # A box sliding on a clean render: its windows keep matching, so the tracks are strict (each one surface
+    # point) and the box does not seem to turn. Measured: 0.33° median with them, 1.74° anchored.
+    scene = make_scene("translation", seed=1, num_frames=24, size=(240, 180))
+    errors = {}
+    for strict in ("auto", False):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            prior = extract_prior(scene.frames, scene.masks, scene.camera.K, scene.fps,
+                                  options=ExtractOptions(strict_tracks=strict))
+        errors[strict] = np.median(rotation_errors(prior.poses[0], scene.poses[0])[1:])
+        assert prior.metadata["tracks"]["strict"] is (strict == "auto")
+    assert errors["auto"] < 0.6 and errors[False] > 2 * errors["auto"]
+    with pytest.raises(InputError, match="strict_tracks"):
+        extract_prior(scene.frames, scene.masks, scene.camera.K, scene.fps, options=ExtractOptions(strict_tracks="x"))
 
 
 @pytest.fixture(scope="module")

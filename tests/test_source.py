@@ -7,6 +7,7 @@ rendered synthetic scenes of ``marionette.synthetic``.
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
@@ -170,9 +171,10 @@ def test_strict_tracks_follow_a_turning_texture_without_drift():
     assert np.median(err) < 0.05 and err.max() < 0.3
 
 
-def test_strict_tracks_end_at_a_fold_that_anchored_tracks_cross():
+def test_strict_tracks_are_cut_at_a_fold_that_anchored_tracks_cross():
     # Two surfaces meeting at a vertical seam: the left one still, the right one sliding right and brightening.
-    # A window across the seam fits no single affine warp: strict tracks there end, anchored ones go on.
+    # A window across the seam fits no single affine warp: strict tracks there are cut (a fresh one carries on
+    # from where each was), anchored ones go on.
     steps = 10
     frames = []
     for t in range(steps):
@@ -188,9 +190,57 @@ def test_strict_tracks_end_at_a_fold_that_anchored_tracks_cross():
         return tr.visible[-1, (tr.start == 0) & (distance >= low) & (distance < high)].mean()
 
     strict, anchored = track(frames, masks, strict=True), track(frames, masks)
+    assert strict.strict and not anchored.strict and (anchored.continues == -1).all()
     assert surviving(anchored, 0, 6) > 0.8
     assert surviving(strict, 0, 6) < 0.3
     assert surviving(strict, 20, W) > 0.8  # away from the seam, both surfaces keep their tracks
+    assert surviving(strict.joined(), 0, 6) > 0.8  # the pieces, joined, follow the seam as anchored tracks do
+    cut = np.nonzero(strict.continues >= 0)[0]
+    assert len(cut) > 20
+    before = strict.continues[cut]
+    ended = strict.visible.shape[0] - 1 - np.argmax(strict.visible[::-1, before], axis=0)  # last frame seen
+    np.testing.assert_array_equal(ended + 1, strict.start[cut])  # each piece starts the frame after the last ends
+
+
+def test_chains_join_the_pieces_of_tracks():
+    nan = np.nan
+    uv = np.array([[[0, 0], [nan, nan], [5, 5], [nan, nan]],
+                   [[1, 0], [nan, nan], [6, 5], [nan, nan]],
+                   [[nan, nan], [2, 0], [7, 5], [nan, nan]],
+                   [[nan, nan], [nan, nan], [nan, nan], [3, 0]]], np.float32)  # (T=4, M=4, 2)
+    tracks = Tracks(uv, np.isfinite(uv[..., 0]), np.array([0, 2, 0, 3]), continues=np.array([-1, 0, -1, 1]))
+    np.testing.assert_array_equal(tracks.chains(), [0, 0, 1, 0])
+    joined = tracks.joined()
+    np.testing.assert_array_equal(joined.uv[:, 0, 0], [0, 1, 2, 3])
+    np.testing.assert_array_equal(joined.uv[:3, 1, 0], [5, 6, 7])
+    np.testing.assert_array_equal(joined.start, [0, 0])
+    assert joined.num_tracks == 2 and (joined.continues == -1).all()
+    part = tracks.subset(np.array([False, True, True, True]))  # the first piece dropped: the second counts as seeded
+    np.testing.assert_array_equal(part.continues, [-1, -1, 0])
+    with pytest.raises(ValueError, match="continues"):
+        Tracks(uv, np.isfinite(uv[..., 0]), np.array([0, 2, 0, 3]), continues=np.array([-1, 1, -1, 1]))
+
+
+def test_auto_strictness_follows_the_footage():
+    # A turning texture: every window keeps matching its anchor, so the tracks stay strict. The same frames
+    # saved as JPEG at quality 20: block artefacts that change with the texture's position spoil the close
+    # match (measured: share 1.0 clean, 0.0 compressed), and the tracking starts over anchored.
+    turns = np.radians(np.linspace(0, 30, 13))
+    frames = np.stack([wave_texture(turn=a) for a in turns])
+    masks = np.repeat(disc(90)[None], len(turns), axis=0)
+    clean = track(frames, masks, strict="auto")
+    assert clean.strict and clean.anchor_match > 0.9
+    compressed = np.stack([cv2.imdecode(cv2.imencode(".jpg", f, [cv2.IMWRITE_JPEG_QUALITY, 20])[1],
+                                        cv2.IMREAD_UNCHANGED) for f in frames])
+    steps = []
+    auto = track(compressed, masks, strict="auto", progress=lambda done, total: steps.append((done, total)))
+    anchored = track(compressed, masks)
+    assert not auto.strict and auto.anchor_match < 0.5 and np.isnan(anchored.anchor_match)
+    assert np.array_equal(auto.uv, anchored.uv, equal_nan=True) and np.array_equal(auto.start, anchored.start)
+    done = [d for d, _ in steps]
+    assert done == sorted(set(done)) and done[-1] == len(turns) - 1  # the bar never goes back
+    with pytest.raises(InputError, match="strict"):
+        track(frames, masks, strict="sometimes")
 
 
 def test_identical_frames_give_zero_motion():

@@ -91,11 +91,15 @@ class ExtractOptions:
         its metadata says under ``focal`` whether the tracks determined it (an
         object that only translates or turns in the image plane leaves the
         given one). Not with depth maps.
-    strict_tracks : bool
-        End a track where its window stops matching its seed window instead
-        of anchoring it again (``track(..., strict=True)``): no drift, so
-        clean footage gives poses several times closer; compressed or
-        blurred clips get short tracks. Off by default.
+    strict_tracks : bool or "auto"
+        End a track where its window stops matching its anchor window, a fresh
+        one starting there, instead of anchoring it again (``track(...,
+        strict=True)``): each track one surface point, so clean footage gives
+        poses several times closer; compressed or blurred clips get tracks a
+        frame or two long. ``"auto"`` (the default) tries strict tracks on the
+        first frames and keeps them where their windows keep matching. With
+        ``parts`` other than 1, anchored tracks (the part segmentation needs
+        long ones).
     relief : float
         Half-thickness of the inflated shape prior relative to the mask's
         inscribed radius (1: a disc mask becomes a sphere).
@@ -121,7 +125,7 @@ class ExtractOptions:
     recover_frames: bool = True
     joints: bool = True
     estimate_focal: bool = False
-    strict_tracks: bool = False
+    strict_tracks: bool | str = "auto"
     relief: float = 1.0
     motion_threshold: float = 0.5
     rigid: RigidOptions = field(default_factory=RigidOptions)
@@ -141,16 +145,19 @@ class _Part:
     recovered: dict[int, str]  # frames the tracks lost whose pose was found by alignment, with its note
 
 
+def _strictness(options: ExtractOptions) -> bool | str:
+    """``track``'s ``strict`` for these options: anchored where parts are segmented (it needs long tracks)."""
+    if options.strict_tracks not in (True, False, "auto"):
+        raise InputError(f"strict_tracks must be true, false or 'auto', got {options.strict_tracks!r}")
+    return options.strict_tracks if options.parts == 1 or options.strict_tracks is True else False
+
+
 def _motion_px(tracks: Tracks, percentile: float = 90.0) -> float:
     """Largest, over frames, ``percentile`` of the visible tracks' displacements from their start (px); 0 if none."""
     first = tracks.uv[tracks.start, np.arange(tracks.num_tracks)]  # (M, 2)
     disp = np.linalg.norm(tracks.uv - first[None], axis=2)  # (T, M), NaN where not visible
     moved = [np.percentile(d[v], percentile) for d, v in zip(disp, tracks.visible) if v.any()]
     return float(max(moved, default=0.0))
-
-
-def _subset(tracks: Tracks, keep: np.ndarray) -> Tracks:
-    return Tracks(tracks.uv[:, keep], tracks.visible[:, keep], tracks.start[keep])
 
 
 def _propagate_labels(tracks: Tracks, labels: np.ndarray, unlabelled: int, radius: float,
@@ -338,11 +345,14 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
     with stages("tracking", "tracking", num_frames - 1) as progress:
         tracks = track(frames, masks, spacing=options.spacing, window=options.window, levels=options.levels,
                        fb_threshold=options.fb_threshold, reseed_every=options.reseed_every,
-                       min_eigen=options.min_eigen, strict=options.strict_tracks, progress=progress)
+                       min_eigen=options.min_eigen, strict=_strictness(options), progress=progress)
+    # Strict tracks are pieces of chains, one surface point each: the pose fit takes the pieces; what needs long
+    # tracks (the amount of motion, the focal length, parts and joints) takes the chains.
+    chains, chain_of = tracks.joined(), tracks.chains()
     focal = None
     if options.estimate_focal and depths is None:
         with stages("focal", "focal length", len(FOCAL_SCALES) + 1) as progress:
-            estimate = estimate_focal(tracks, masks[0], k, options=options.rigid, progress=progress)
+            estimate = estimate_focal(chains, masks[0], k, options=options.rigid, progress=progress)
         focal = {"focal_px": round(estimate.focal, 2), "measured": estimate.measured,
                  "given_px": round(float(k[0, 0]), 2), "note": estimate.note}
         k = k.copy()
@@ -367,12 +377,14 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
             camera, camera_note = None, f"unreliable (background agreement {camera.agreement:.0%}), kept"
     metadata = {"method": "lk-tracks+" + ("depth-umeyama" if depths is not None else "inflated-shape+pnp+ba"),
                 "options": dataclasses.asdict(options), "num_tracks": tracks.num_tracks,
+                "tracks": {"strict": tracks.strict,
+                           "anchor_match": None if np.isnan(tracks.anchor_match) else round(tracks.anchor_match, 3)},
                 "camera_motion": camera_note, "camera_model": camera_model,
                 **({} if focal is None else {"focal": focal}), "timings": stages.timings}
     common = dict(fps=fps, image_size=(w, h), intrinsics=k)
     extras = {"tracks_uv": tracks.uv, "tracks_visible": tracks.visible}
 
-    motion = _motion_px(tracks) if camera is None or camera.static else np.inf
+    motion = _motion_px(chains) if camera is None or camera.static else np.inf
     few = tracks.num_tracks < options.rigid.min_points
     if few or motion < options.motion_threshold:
         reason = (f"only {tracks.num_tracks} trackable points on the object (too little texture, or a tiny mask)"
@@ -388,21 +400,22 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
         return dataclasses.replace(prior, extras=extras)
 
     if options.parts == 1:
-        track_labels = np.zeros(tracks.num_tracks, np.int64)
+        chain_labels = np.zeros(chains.num_tracks, np.int64)
         pixel_labels = np.where(masks[0], 0, OFF_OBJECT)
         groups = [0]
     else:
         with stages("parts", "finding parts", 1) as progress:
-            seg = segment_parts(tracks, masks[0], k, options.parts,
-                                whole=whole_object_poses(tracks, whole, options.rigid))
+            seg = segment_parts(chains, masks[0], k, options.parts,
+                                whole=whole_object_poses(chains, whole, options.rigid))
             progress(1, 1)
-        track_labels = _propagate_labels(tracks, seg.track_labels, OUTLIER, radius=3.0 * options.spacing)
+        chain_labels = _propagate_labels(chains, seg.track_labels, OUTLIER, radius=3.0 * options.spacing)
         pixel_labels = seg.pixel_labels
         groups = list(range(seg.num_parts)) + ([STATIC] if (pixel_labels == STATIC).any() else [])
         # Rounded: the scores' last digits follow the BLAS thread count, and the metadata should not.
         metadata["part_selection"] = {str(n): round(float(score), 3) for n, score in seg.scores.items()}
         metadata["part_selection_note"] = seg.selection
 
+    track_labels = chain_labels[chain_of]  # (M,) each track's, from its chain
     parts, rms, recover_seconds = [], [], 0.0
     with stages("poses", "fitting poses", len(groups) * num_frames) as progress:
         for i, g in enumerate(groups):
@@ -420,11 +433,11 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
             if g == STATIC or members.sum() < options.rigid.min_points:
                 poses = np.tile(np.eye(4), (num_frames, 1, 1))  # static, or too few tracks to tell
             elif depths is not None:
-                poses = poses_from_depth(_subset(tracks, members), depths, k)
+                poses = poses_from_depth(tracks.subset(members), depths, k)
             else:
                 recover = (FrameRecovery(frames, masks, k, shape.centroid)
                            if options.recover_frames and len(groups) == 1 else None)
-                fit = fit_rigid(_subset(tracks, members), shape, options=options.rigid, progress=step,
+                fit = fit_rigid(tracks.subset(members), shape, options=options.rigid, progress=step,
                                 recover=recover)
                 poses, failed, points = fit.poses, fit.failed_frames, fit.points[fit.triangulated]
                 recovered = fit.recovered_frames
@@ -440,7 +453,7 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
     parts.sort(key=lambda p: -p.pixels.sum())
     if options.joints and len(parts) > 1:
         with stages("joints", "fitting joints", len(parts) - 1) as progress:
-            metadata["joints"] = _fit_joints(parts, tracks, track_labels, masks, k, progress)
+            metadata["joints"] = _fit_joints(parts, chains, chain_labels, masks, k, progress)
     poses = np.stack([p.poses for p in parts])  # (K, T, 4, 4) in camera coordinates
     cameras = None  # (1, T, 4, 4) world_to_camera, when the camera's motion is removed
     if camera is not None and not camera.static:

@@ -18,8 +18,10 @@ tracker", 2001; ``cv2.calcOpticalFlowPyrLK``), frame to frame:
   it was anchored, under an affine warp with a gain and a bias
   (:func:`_align_affine`; chained LK lags by 1-2 % of the motion under
   rotation, which adds up to degrees over a turn). A track is anchored where
-  it was seeded, and again wherever its window changed too much to align
-  (or, with ``strict``, ends there);
+  it was seeded, and again wherever its window changed too much to align;
+  or, ``strict``, it ends there and a fresh track starts at the same place,
+  so that every track follows one surface point (``strict="auto"``: strict
+  when the footage keeps windows matching, see :func:`track`);
 - a forward-backward check (Kalal et al., "Forward-backward error", ICPR
   2010): a point tracked to the next frame and back must land within
   ``fb_threshold`` pixels of where it started;
@@ -37,6 +39,7 @@ Pixel convention: (u, v) with (0, 0) at the centre of the top-left pixel
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -71,12 +74,23 @@ _ALIGN_BLUR = 0.7
 # of the chained estimate and the warp of sane area. A window that stops
 # matching straddles a crease or an occluding edge, its surface turned away,
 # or the video is blurred or compressed: the track is anchored again where it
-# is (one chained step, some drift) or, strict, ends there (re-seeding starts
-# fresh ones).
+# is (one chained step, some drift) or, strict, ends there (and a fresh one
+# starts at the same place).
 _ANCHOR_RESIDUAL = 1.0
 _STRICT_RESIDUAL = 0.1
 _MIN_GAIN = 1.0 / 3.0
 _ANCHOR_SHIFT = 2.0
+# ``strict="auto"``: tracks are strict while at least _STRICT_SHARE of all the
+# windows aligned so far match their anchor, counted from _PROBE_FRAMES frame
+# steps on; below it, the footage (compression, blur, changing light) cuts
+# strict tracks into pieces a frame or two long, and tracking starts over
+# anchored. Measured (session of 2026-12-05, synthetic scenes of 48 frames at
+# 320x240, DAVIS clips and the backpack): the share's lowest value from step 8
+# on is 0.73-0.97 on every one-part synthetic motion, with or without image
+# noise; over whole clips 0.36-0.66 on the real ones (car-turn 0.71 over its
+# first 8 steps, 0.43 in its middle).
+_PROBE_FRAMES = 8
+_STRICT_SHARE = 0.7
 
 
 @dataclass(frozen=True)
@@ -92,11 +106,25 @@ class Tracks:
         contiguous run of frames starting at ``start[m]``.
     start : (M,) int64
         Frame at which each track was seeded.
+    strict : bool
+        Whether a track ends where its window stops matching (each track one
+        surface point) rather than being anchored again there.
+    continues : (M,) int64
+        The track each one carries on from: it starts where that one was at
+        the frame before (a strict track cut where its window stopped
+        matching); -1 where it was seeded. Always a lower index.
+    anchor_match : float
+        Share of the window alignments that matched their anchor closely (the
+        strict criterion): over the whole video when strict, over the first
+        frames where ``strict="auto"`` chose anchored tracks; NaN otherwise.
     """
 
     uv: np.ndarray
     visible: np.ndarray
     start: np.ndarray
+    strict: bool = False
+    anchor_match: float = float("nan")
+    continues: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         uv = np.asarray(self.uv, dtype=np.float32)
@@ -112,6 +140,10 @@ class Tracks:
         object.__setattr__(self, "uv", uv)
         object.__setattr__(self, "visible", vis)
         object.__setattr__(self, "start", start)
+        continues = np.full(m, -1, np.int64) if self.continues is None else np.asarray(self.continues, np.int64)
+        if continues.shape != (m,) or (continues >= np.arange(m)).any():
+            raise ValueError(f"Tracks.continues must be ({m},) with each entry below its own index")
+        object.__setattr__(self, "continues", continues)
 
     @property
     def num_frames(self) -> int:
@@ -120,6 +152,35 @@ class Tracks:
     @property
     def num_tracks(self) -> int:
         return self.uv.shape[1]
+
+    def chains(self) -> np.ndarray:
+        """(M,) int64: the chain of tracks carrying on from one another that each track belongs to, numbered
+        0..C-1 in the order of their first tracks."""
+        root = np.arange(self.num_tracks)
+        for m in np.nonzero(self.continues >= 0)[0]:  # ascending, and each carries on from a lower index
+            root[m] = root[self.continues[m]]
+        return np.unique(root, return_inverse=True)[1].astype(np.int64)
+
+    def subset(self, keep: np.ndarray) -> "Tracks":
+        """The tracks ``keep`` ((M,) bool) selects; a kept track whose predecessor is dropped counts as seeded."""
+        index = np.full(self.num_tracks, -1, np.int64)
+        index[keep] = np.arange(int(np.count_nonzero(keep)))
+        continues = np.where(self.continues[keep] >= 0, index[np.maximum(self.continues[keep], 0)], -1)
+        return Tracks(self.uv[:, keep], self.visible[:, keep], self.start[keep], self.strict, self.anchor_match,
+                      continues)
+
+    def joined(self) -> "Tracks":
+        """One track per chain (:meth:`chains`), each following its pieces in turn: long tracks that carry
+        each cut's small step error on, for what needs them long (the part segmentation, the focal length,
+        the amount of motion)."""
+        chain = self.chains()
+        count = int(chain.max()) + 1 if self.num_tracks else 0
+        uv = np.full((self.num_frames, count, 2), np.nan, np.float32)
+        frame, m = np.nonzero(self.visible)
+        uv[frame, chain[m]] = self.uv[frame, m]
+        start = np.full(count, self.num_frames, np.int64)
+        np.minimum.at(start, chain, self.start)
+        return Tracks(uv, np.isfinite(uv).all(axis=2), start, self.strict, self.anchor_match)
 
 
 def _check_video(frames: np.ndarray | VideoFrames,
@@ -622,14 +683,15 @@ def _align_affine(ref: np.ndarray, ref_mask: np.ndarray, cur: np.ndarray, p_ref:
 
 def track(frames: np.ndarray, masks: np.ndarray, *, spacing: int = 6, window: int = 21, levels: int = 3,
           fb_threshold: float = 1.0, reseed_every: int = 4, min_eigen: float = 2e-4,
-          border: int = 4, mask_tolerance: int = 3, refine: bool = True, strict: bool = False,
+          border: int = 4, mask_tolerance: int = 3, refine: bool = True, strict: bool | str = False,
           progress: Callable[[int, int], None] | None = None) -> Tracks:
     """Track a grid of object points through a video with pyramidal Lucas–Kanade.
 
     Parameters
     ----------
     frames : ndarray, shape (T, H, W, 3), uint8, or VideoFrames
-        RGB video frames, read once in order.
+        RGB video frames, read in order (twice over the first frames when
+        ``strict="auto"`` starts over).
     masks : ndarray, shape (T, H, W), bool or integer, or PackedMasks
         Object masks per frame (non-zero = object).
     spacing : int
@@ -661,21 +723,26 @@ def track(frames: np.ndarray, masks: np.ndarray, *, spacing: int = 6, window: in
         anchor frame (no drift; the default). Off: plain pyramidal LK with
         the forward-backward check, several times faster, for sparse
         background tracks whose drift matters less.
-    strict : bool
-        End a track where its window stops matching its seed window closely
-        (10 % of its contrast) instead of anchoring it again there. Every
-        track then follows one surface point with no drift, and the poses of
-        clean footage come out several times closer (synthetic one-part
-        turns: 0.06-0.20° against 0.18-0.52° median); on compressed, blurred
-        real clips tracks grow short, and part segmentation and hard frames
-        suffer (``docs/benchmarks/extract.md``).
+    strict : bool or "auto"
+        True: a track ends where its window stops matching its anchor window
+        closely (10 % of its contrast, grey levels under a gain and a bias)
+        and a fresh track starts at the same place, instead of the track being
+        anchored again there. Every track then follows one surface point, no
+        step's error is carried on, and the poses of clean footage come out
+        several times closer; on compressed or blurred clips the tracks are
+        cut into pieces a frame or two long, and the poses drift.
+        ``"auto"``: strict while at least 70 % of the windows aligned so far
+        match their anchor that closely (checked from the 8th frame step on);
+        once fewer do, the tracking starts over anchored
+        (``docs/benchmarks/extract.md``).
     progress : callable(done, total), optional
         Called after each frame step with ``total = T - 1``.
 
     Returns
     -------
     Tracks
-        With ``M`` tracks; ``uv`` NaN where a track is not (yet, or any more) alive.
+        With ``M`` tracks; ``uv`` NaN where a track is not (yet, or any more)
+        alive; ``strict`` says which way they were made.
     """
     frames, masks = _check_video(frames, masks)
     for name, value, low in (("spacing", spacing, 1), ("window", window, 3), ("levels", levels, 0),
@@ -687,8 +754,42 @@ def track(frames: np.ndarray, masks: np.ndarray, *, spacing: int = 6, window: in
         raise InputError(f"track: fb_threshold must be a positive number, got {fb_threshold!r}")
     if not (np.isfinite(min_eigen) and min_eigen >= 0):
         raise InputError(f"track: min_eigen must be a non-negative number, got {min_eigen!r}")
+    if strict not in (True, False, "auto"):
+        raise InputError(f"track: strict must be True, False or 'auto', got {strict!r}")
+    settings = dict(spacing=int(spacing), window=int(window), levels=int(levels), fb_threshold=fb_threshold,
+                    reseed_every=int(reseed_every), min_eigen=min_eigen, border=int(border),
+                    mask_tolerance=int(mask_tolerance), refine=refine)
+    if strict != "auto":
+        return _track_pass(frames, masks, strict=bool(strict), probe=False, progress=progress, **settings)
+    reached = 0
+
+    def probing(done: int, total: int) -> None:
+        nonlocal reached
+        reached = done
+        if progress is not None:
+            progress(done, total)
+
+    probed = _track_pass(frames, masks, strict=True, probe=True, progress=probing, **settings)
+    if probed.strict:
+        return probed
+
+    def resumed(done: int, total: int) -> None:  # the bar waits while the frames probed are tracked again
+        if progress is not None and done > reached:
+            progress(done, total)
+
+    again = _track_pass(frames, masks, strict=False, probe=False, progress=resumed, **settings)
+    return dataclasses.replace(again, anchor_match=probed.anchor_match)
+
+
+def _track_pass(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMasks, *, spacing: int, window: int,
+                levels: int, fb_threshold: float, reseed_every: int, min_eigen: float, border: int,
+                mask_tolerance: int, refine: bool, strict: bool, probe: bool,
+                progress: Callable[[int, int], None] | None) -> Tracks:
+    """One tracking pass over validated inputs (:func:`track`'s arguments). With ``probe``, a strict pass gives
+    up at the first frame step from _PROBE_FRAMES on where fewer than _STRICT_SHARE of the windows aligned so far
+    matched their anchor, and returns the tracks so far with ``strict=False`` and that share."""
     num_frames, h, w = masks.shape
-    lk = dict(winSize=(int(window), int(window)), maxLevel=int(levels), criteria=_LK_CRITERIA)
+    lk = dict(winSize=(window, window), maxLevel=levels, criteria=_LK_CRITERIA)
     tolerance = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * mask_tolerance + 1,) * 2)
     inset = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * border + 1,) * 2)
 
@@ -710,7 +811,7 @@ def track(frames: np.ndarray, masks: np.ndarray, *, spacing: int = 6, window: in
     grey, prev, prev_grey, prev_mask, aligned = load(0)
     noise = _aligned_noise(grey) if strict else 0.0  # what the strict residual discounts
     pts = seeds(0, grey, np.zeros((0, 2), np.float32))  # (N, 2) live positions
-    ids = np.arange(len(pts))  # (N,) their track ids, ascending
+    ids = np.arange(len(pts))  # (N,) their track ids
     anchor = np.zeros(len(pts), np.int64)  # (N,) frame each live track is aligned against
     anchor_pts = pts.astype(np.float64)  # (N, 2) its position there
     warp = np.tile(np.eye(2), (len(pts), 1, 1))  # (N, 2, 2) affine from that frame's window to the current one
@@ -718,6 +819,8 @@ def track(frames: np.ndarray, masks: np.ndarray, *, spacing: int = 6, window: in
     images = {0: (aligned, masks[0])} if refine else {}
     limit = _STRICT_RESIDUAL if strict else _ANCHOR_RESIDUAL
     starts = [np.zeros(len(pts), np.int64)]
+    continued = [np.full(len(pts), -1, np.int64)]  # per batch of new ids: the tracks they carry on from
+    aligned_count = matched_count = 0  # window alignments, and those that matched their anchor
     history = [(ids, pts)]  # per frame: (ids, positions) of the visible tracks
     for t in range(1, num_frames):
         grey, cur, cur_grey, cur_mask, aligned = load(t)
@@ -735,16 +838,27 @@ def track(frames: np.ndarray, masks: np.ndarray, *, spacing: int = 6, window: in
                         & (np.linalg.norm(p - fwd[sel], axis=1) < _ANCHOR_SHIFT))
                 fwd[sel[good]], warp[sel[good]] = p[good], aff[good]
                 matched[sel] = good
-            if not strict:  # the window changed too much since its anchor: anchor again here
-                anchor[~matched], anchor_pts[~matched], warp[~matched] = t, fwd[~matched], np.eye(2)
-                matched[:] = True
+            aligned_count, matched_count = aligned_count + len(pts), matched_count + int(matched.sum())
+            # The window changed too much since its anchor: the track is anchored again here or, strict, ends and
+            # a fresh one starts here.
+            anchor[~matched], anchor_pts[~matched], warp[~matched] = t, fwd[~matched], np.eye(2)
             back, st_b, _ = cv2.calcOpticalFlowPyrLK(cur_grey, prev_grey, fwd[:, None], None, **lk)
             back = _refine_masked(cur, prev, cur_mask, fwd, back[:, 0], window) if refine else back[:, 0]
-            keep = (st_f[:, 0] == 1) & (st_b[:, 0] == 1) & matched
+            keep = (st_f[:, 0] == 1) & (st_b[:, 0] == 1)
             keep &= np.linalg.norm(back - pts, axis=1) <= fb_threshold
             keep &= _inside(fwd, cv2.dilate(masks[t].astype(np.uint8), tolerance).astype(bool))
             ids, pts = ids[keep], fwd[keep].astype(np.float32)
             anchor, anchor_pts, warp = anchor[keep], anchor_pts[keep], warp[keep]
+            if strict and refine:
+                ended = ~matched[keep]
+                first = sum(len(s) for s in starts)
+                continued.append(ids[ended])
+                ids[ended] = np.arange(first, first + ended.sum())
+                starts.append(np.full(int(ended.sum()), t, np.int64))
+        share = matched_count / aligned_count if aligned_count else float("nan")
+        if probe and t >= min(_PROBE_FRAMES, num_frames - 1) and not share >= _STRICT_SHARE:
+            return Tracks(*_assemble(history, starts, num_frames), strict=False, anchor_match=share,
+                          continues=np.concatenate(continued))
         if t % reseed_every == 0:
             new = seeds(t, grey, pts)
             first = sum(len(s) for s in starts)
@@ -754,6 +868,7 @@ def track(frames: np.ndarray, masks: np.ndarray, *, spacing: int = 6, window: in
             anchor_pts = np.concatenate([anchor_pts, new])
             warp = np.concatenate([warp, np.tile(np.eye(2), (len(new), 1, 1))])
             starts.append(np.full(len(new), t, np.int64))
+            continued.append(np.full(len(new), -1, np.int64))
         if refine:
             images[t] = (aligned, masks[t])
             images = {a: images[a] for a in np.unique(anchor)}
@@ -762,10 +877,18 @@ def track(frames: np.ndarray, masks: np.ndarray, *, spacing: int = 6, window: in
         if progress is not None:
             progress(t, num_frames - 1)
 
+    return Tracks(*_assemble(history, starts, num_frames), strict=strict,
+                  anchor_match=share if strict and num_frames > 1 else float("nan"), continues=np.concatenate(continued))
+
+
+def _assemble(history: list[tuple[np.ndarray, np.ndarray]], starts: list[np.ndarray],
+              num_frames: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(T, M, 2) positions, (T, M) visibility and (M,) start frames from the per-frame (ids, positions) of the
+    visible tracks and the start frames of each batch of new ids."""
     start = np.concatenate(starts)
     uv = np.full((num_frames, len(start), 2), np.nan, np.float32)
     visible = np.zeros((num_frames, len(start)), bool)
     for t, (i, p) in enumerate(history):
         uv[t, i] = p
         visible[t, i] = True
-    return Tracks(uv=uv, visible=visible, start=start)
+    return uv, visible, start
