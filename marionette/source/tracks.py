@@ -821,6 +821,7 @@ def _track_pass(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMask
     starts = [np.zeros(len(pts), np.int64)]
     continued = [np.full(len(pts), -1, np.int64)]  # per batch of new ids: the tracks they carry on from
     aligned_count = matched_count = 0  # window alignments, and those that matched their anchor
+    share = float("nan")
     history = [(ids, pts)]  # per frame: (ids, positions) of the visible tracks
     for t in range(1, num_frames):
         grey, cur, cur_grey, cur_mask, aligned = load(t)
@@ -878,7 +879,7 @@ def _track_pass(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMask
             progress(t, num_frames - 1)
 
     return Tracks(*_assemble(history, starts, num_frames), strict=strict,
-                  anchor_match=share if strict and num_frames > 1 else float("nan"), continues=np.concatenate(continued))
+                  anchor_match=share if strict else float("nan"), continues=np.concatenate(continued))
 
 
 def _assemble(history: list[tuple[np.ndarray, np.ndarray]], starts: list[np.ndarray],
