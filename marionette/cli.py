@@ -340,6 +340,11 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
     session.reporter.message(_prior_line(prior))
     if prior.metadata.get("focal"):
         session.reporter.message(f"focal length: {prior.metadata['focal']['note']}")
+    tracks = prior.metadata.get("tracks") or {}
+    if tracks.get("anchor_match") is not None:
+        kind = "strict" if tracks["strict"] else "anchored (strict ones tried first)"
+        session.reporter.detail(f"tracks: {kind}; {tracks['anchor_match']:.0%} of the windows aligned matched "
+                                "their anchor closely")
     recovered = prior.metadata.get("recovered_frames") or {}
     if recovered:
         hinged = sum(note.startswith(HINGE_NOTE) for note in recovered.values())

@@ -194,7 +194,7 @@ def write_clip(root, scene):
     return frames, masks
 
 
-def test_extract_and_run_on_a_synthetic_video(tmp_path, target_png):
+def test_extract_and_run_on_a_synthetic_video(tmp_path, target_png, capsys):
     from marionette.synthetic import make_scene
 
     scene = make_scene("inplane", num_frames=10, size=(160, 120), seed=1)
@@ -204,8 +204,10 @@ def test_extract_and_run_on_a_synthetic_video(tmp_path, target_png):
     prior = read_prior(tmp_path / "p.npz")
     assert prior.num_frames == 10 and prior.num_parts == 1
     assert cv2.imread(str(tmp_path / "p.png")).shape[0] > 100
-    assert main(["extract", str(frames), "--masks", str(masks), "-o", str(tmp_path / "q.npz"), "-q",
+    capsys.readouterr()
+    assert main(["extract", str(frames), "--masks", str(masks), "-o", str(tmp_path / "q.npz"), "--verbose",
                  "--parts", "1", "--start", "2", "--stride", "2", "--no-recover-frames", "--strict-tracks"]) == 0
+    assert "tracks: strict; " in capsys.readouterr().err
     assert main(["extract", str(frames), "--masks", str(masks), "-o", str(tmp_path / "f.npz"), "-q",
                  "--focal", "auto"]) == 0
     focal = read_prior(tmp_path / "f.npz").metadata["focal"]
