@@ -63,15 +63,21 @@ READING_STRICT = (
     " 0.6 % of the motion, even under pure translation). A strict track is aligned on lightly blurred grey images"
     " under a gain and a bias and cut where that stops matching closely; the fresh track that carries on from"
     " there is a new surface point to the pose fit, so no step's error is carried on (what needs long tracks, the"
-    " amount of motion, the focal length, parts and joints, takes the pieces joined). Cutting alone, with the"
-    " normalised windows, changed nothing (translation 0.45°, outofplane 0.45° median, session of 2026-12-05);"
-    " grey windows without the cuts were worse (0.60°, 0.73°). On compressed or blurred footage the pieces are a"
-    " frame or two long (car-turn: median 1 frame) and the poses drift (car-turn's reconstruction 29.9 dB against"
-    " 32.4 with anchored tracks), so the default tries strict tracks and starts over anchored once fewer than 70 %"
-    " of the windows aligned so far still match (from the 8th frame step on): the synthetic one-part scenes here"
-    " keep 73-97 %, the DAVIS clips and the backpack 36-66 % over the whole clip (car-turn 71 % over its first 8"
-    " steps, then less); the probe costs them about a second. With `parts` other than 1 the tracks are anchored:"
-    " the part segmentation of the hinge on joined strict tracks lost its lid (11-40° off).")
+    " amount of motion, the focal length, parts and joints, takes the pieces joined into chains). Cutting alone,"
+    " with the normalised windows, changed nothing (translation 0.45°, outofplane 0.45° median, session of"
+    " 2026-12-05); grey windows without the cuts were worse (0.60°, 0.73°). The pieces are short (median 3 frames"
+    " here), so the pose fit's refinement draws whole chains, with all their pieces, and a chain's pieces share one"
+    " track's depth prior: drawn piece by piece, the 400 pieces held a sixth of the observations, and 1 px of"
+    " track noise (the first table) gave translation 1.35 / 4.90 / 1.99° and outofplane 2.30 / 2.11 / 2.63°"
+    " (by chain: 0.52 / 0.30 / 0.25° and 2.70 / 0.97 / 0.44°), for inplane 0.24 / 0.15 / 0.15° without noise"
+    " (by chain 0.24 / 0.28 / 0.14°). On compressed or blurred footage the pieces are a frame or two long"
+    " (car-turn: median 1 frame) and the poses drift (car-turn's reconstruction 29.9 dB with strict tracks"
+    " against 32.4 anchored), so the default tries strict tracks and starts over anchored once fewer than 70 % of"
+    " the windows aligned so far still match (from the 8th frame step on): the synthetic one-part scenes here keep"
+    " 73-97 %, the DAVIS clips and the backpack 36-66 % over the whole clip (car-turn 71 % over its first 8 steps,"
+    " then less), and those start over after 8-9 steps, about a second. With `parts` other than 1 the tracks are"
+    " anchored: on strict ones (the hinge rows 'strict' below: parts found on the chains, each part fitted on the"
+    " pieces) the lid comes out 18-40° off.")
 
 
 def errors(prior, scene) -> tuple[float, float, float]:
@@ -291,8 +297,9 @@ def hinge_parts(seeds: int, frames: int, size: tuple[int, int]) -> list[str]:
         " by frame 10: a near-planar part under near-affine viewing leaves its tilt and its rotation about an"
         " in-plane axis weakly separable, and the inflated shape prior's tilt is wrong for a box's top face."
         " On exact tracks (last table) the same extraction gets the lid to a degree or two: most of the error is"
-        " the tracker's drift on the lid. Strict tracks do not help here: the lid's tracks end as its faces turn"
-        " away, too early for the part segmentation to find it."]
+        " the tracker's drift on the lid. Strict tracks (forced with `--strict-tracks`; by default the tracks are"
+        " anchored where parts are found) do not help here: the parts are found on their chains, but the lid's"
+        " pieces, cut as its faces turn away, leave its pose fit 18-40° off."]
 
 
 def main() -> None:

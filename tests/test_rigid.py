@@ -15,7 +15,15 @@ from scipy.optimize import least_squares
 
 from marionette.geometry import axis_angle_to_matrix, make_transform, matrix_to_axis_angle, rotation_angle_deg
 from marionette.source import Tracks
-from marionette.source.rigid import RigidOptions, ShapePrior, _bundle_adjust, _project, carved_centroid, fit_rigid
+from marionette.source.rigid import (
+    RigidOptions,
+    ShapePrior,
+    _bundle_adjust,
+    _choose_tracks,
+    _project,
+    carved_centroid,
+    fit_rigid,
+)
 
 pytestmark = pytest.mark.heavy
 
@@ -308,3 +316,17 @@ def test_a_frame_where_few_tracks_survive_is_aligned_from_its_weak_pose():
     assert fit.recovered_frames[10].startswith("PnP kept only")
     without = fit_rigid(tracks, shape, recover=None)
     assert 10 not in without.failed_frames and 10 not in without.recovered_frames
+
+
+def test_the_refinement_draws_whole_chains_of_strict_tracks():
+    # 60 tracks in 20 chains of 3 pieces (frames 0-3, 4-7, 8-11): a draw of 5 takes all 3 pieces of 5 chains,
+    # as many observations as 5 long tracks would give.
+    visible = np.zeros((12, 60), bool)
+    for m in range(60):
+        visible[4 * (m % 3):4 * (m % 3) + 4, m] = True
+    ids, chains = np.arange(60), np.arange(60) // 3
+    picked = _choose_tracks(visible, 5, 0, ids, chains, per_frame=0)
+    assert len(np.unique(chains[picked])) == 5 and len(picked) == 15
+    # One piece per chain (anchored tracks): the random sample of the tracks themselves, as before chains.
+    sample = np.sort(np.random.default_rng(0).choice(60, 5, replace=False))
+    np.testing.assert_array_equal(_choose_tracks(visible, 5, 0, ids, ids, per_frame=0), sample)

@@ -316,7 +316,8 @@ class RigidOptions:
     refine_tracks : int
         About this many tracks, drawn at random (plus the longest ones where
         a frame has fewer than 30), enter the refinement; a few hundred
-        constrain 6-DoF poses well and keep it to about a second.
+        constrain 6-DoF poses well and keep it to about a second. Strict
+        tracks count by chain (all the pieces of one surface's track).
     refine_loss_scale : float
         Huber loss scale in pixels: residuals above it count linearly.
     prune_threshold : float
@@ -452,30 +453,40 @@ def _huber_weights(norms: np.ndarray, scale: float) -> tuple[np.ndarray, float]:
 
 def _bundle_adjust(observed: np.ndarray, uv: np.ndarray, k: np.ndarray, poses: np.ndarray, points: np.ndarray,
                    directions: np.ndarray, free: np.ndarray, radius: float, options: RigidOptions,
-                   iterations: int = 30, held: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                   iterations: int = 30, held: np.ndarray | None = None,
+                   prior_share: np.ndarray | float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """Jointly refine the poses of frames ``free`` (F,) and N points (N, 3) observed at ``uv`` (T, N, 2).
 
     :func:`~marionette.source.bundle.bundle_adjust` with the options' Huber
     scale (``refine_loss_scale``) and the depth prior
     ``depth_prior_weight * n·(X - X_lift) / radius`` per point, ``n`` (N, 3)
-    the point's unit lifting ray in body coordinates; frame 0 and the frames
-    ``held`` keep their poses, ``iterations`` bounds the cost evaluations.
+    the point's unit lifting ray in body coordinates, times ``prior_share``
+    (N,) (each piece of a strict track its share, so that a chain weighs as
+    one track); frame 0 and the frames ``held`` keep their poses,
+    ``iterations`` bounds the cost evaluations.
     Returns refined poses (T, 4, 4) (other frames unchanged) and points (N, 3).
     """
-    return bundle_adjust(observed, uv, k, poses, points, directions, free, options.depth_prior_weight / radius,
+    return bundle_adjust(observed, uv, k, poses, points, directions, free,
+                         options.depth_prior_weight / radius * prior_share,
                          options.refine_loss_scale, iterations, held)
 
 
-def _choose_tracks(visible: np.ndarray, count: int, seed: int, ids: np.ndarray, per_frame: int = 30) -> np.ndarray:
-    """Pick about ``count`` of the tracks ``ids`` (M,) with visibility (T, M) for the bundle adjustment.
+def _choose_tracks(visible: np.ndarray, count: int, seed: int, ids: np.ndarray, chains: np.ndarray,
+                   per_frame: int = 30) -> np.ndarray:
+    """Pick the tracks ``ids`` (M,) with visibility (T, M) of about ``count`` chains for the bundle adjustment.
 
-    A random sample, topped up with the longest remaining tracks at frames
-    where it has fewer than ``per_frame`` (or all there are): those carry the
-    poses across occlusions and turns, where few tracks live. Returns sorted ids.
+    A random sample of the chains ``chains`` (M,) (:meth:`Tracks.chains`: strict
+    tracks cut into pieces come back whole, so the sample holds as many
+    observations as one of long tracks), topped up with the longest remaining
+    tracks at frames where it has fewer than ``per_frame`` (or all there are):
+    those carry the poses across occlusions and turns, where few tracks live.
+    Returns sorted ids.
     """
     rng = np.random.default_rng(seed)
-    pick = np.zeros(len(ids), bool)
-    pick[rng.choice(len(ids), min(count, len(ids)), replace=False)] = True
+    groups, member = np.unique(chains, return_inverse=True)
+    drawn = np.zeros(len(groups), bool)
+    drawn[rng.choice(len(groups), min(count, len(groups)), replace=False)] = True
+    pick = drawn[member]
     length = visible.sum(axis=0)
     for t in range(len(visible)):
         need = min(per_frame, visible[t].sum()) - (visible[t] & pick).sum()
@@ -594,6 +605,7 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
     failed: dict[int, str] = {}
     recovered: dict[int, str] = {}
     t_start = time.perf_counter()
+    chains = tracks.chains()  # (M,)
     t_recover = 0.0
 
     def recover_pose(t: int, source: int, guess: np.ndarray, replace: bool = False) -> tuple[np.ndarray | None, str]:
@@ -638,11 +650,14 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
         lifted = np.nonzero(np.isfinite(points[:, 0]) & (seen.sum(axis=0) >= 2))[0]
         if not len(free) or len(lifted) < options.min_points:
             return
-        chosen = _choose_tracks(seen[:, lifted], options.refine_tracks, options.seed, lifted)
+        chosen = _choose_tracks(seen[:, lifted], options.refine_tracks, options.seed, lifted, chains[lifted])
         observed = seen[:, chosen]
         iterations = 30 if final else 10
+        _, piece_of, pieces = np.unique(chains[chosen], return_inverse=True, return_counts=True)
+        share = 1.0 / np.sqrt(pieces[piece_of])  # (N,) a chain's pieces share one track's depth prior
         poses[:], points[chosen] = _bundle_adjust(observed, uv[:, chosen], k, poses, points[chosen],
-                                                  directions[chosen], free, shape.radius, options, iterations, held)
+                                                  directions[chosen], free, shape.radius, options, iterations, held,
+                                                  share)
         if final and options.prune_threshold > 0:
             # Tracks drift rather than jump: drop each one from its first frame past the gate on.
             err = _reprojection_errors(k, poses, points[chosen], uv[:, chosen])
@@ -650,7 +665,8 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
             gate = max(options.prune_threshold, 3.4 * float(np.median(err[observed])))
             observed &= np.cumsum(observed & (err > gate), axis=0) == 0
             poses[:], points[chosen] = _bundle_adjust(observed, uv[:, chosen], k, poses, points[chosen],
-                                                      directions[chosen], free, shape.radius, options, held=held)
+                                                      directions[chosen], free, shape.radius, options, held=held,
+                                                      prior_share=share)
         rest = np.setdiff1d(lifted, chosen)
         points[rest] = _refine_points(seen[:, rest], uv[:, rest], k, poses, points[rest], options.refine_loss_scale)
 
