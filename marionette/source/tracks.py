@@ -690,7 +690,7 @@ def track(frames: np.ndarray, masks: np.ndarray, *, spacing: int = 6, window: in
     Parameters
     ----------
     frames : ndarray, shape (T, H, W, 3), uint8, or VideoFrames
-        RGB video frames, read in order (twice over the first frames when
+        RGB video frames, read in order (from the start again where
         ``strict="auto"`` starts over).
     masks : ndarray, shape (T, H, W), bool or integer, or PackedMasks
         Object masks per frame (non-zero = object).
