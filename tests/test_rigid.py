@@ -19,8 +19,10 @@ from marionette.source.rigid import (
     RigidOptions,
     ShapePrior,
     _bundle_adjust,
+    _chain_errors,
     _choose_tracks,
     _project,
+    _reprojection_errors,
     carved_centroid,
     fit_rigid,
 )
@@ -330,3 +332,23 @@ def test_the_refinement_draws_whole_chains_of_strict_tracks():
     # One piece per chain (anchored tracks): the random sample of the tracks themselves, as before chains.
     sample = np.sort(np.random.default_rng(0).choice(60, 5, replace=False))
     np.testing.assert_array_equal(_choose_tracks(visible, 5, 0, ids, ids, per_frame=0), sample)
+
+
+def test_pieces_are_scored_by_their_chain():
+    # Frames 0-3, the body sliding sideways. Track 0 (frames 0-1) follows a point 5 units deep; track 1 carries on
+    # from it (frames 2-3) but moves as a point 2 units deep would (another part): each fits a point of its own,
+    # their chain fits none. Track 2, a long track of its own, is scored as before.
+    k = np.array([[100.0, 0, 50], [0, 100.0, 50], [0, 0, 1]])
+    poses = np.stack([make_transform(np.eye(3), np.array([0.2 * t, 0.0, 0.0])) for t in range(4)])
+    near, far = np.array([0.0, 0.0, 2.0]), np.array([0.0, 0.0, 5.0])
+    points = np.stack([far, near, far])
+    uv = np.full((4, 3, 2), np.nan)
+    uv[:2, 0] = _project(k, far[None] + poses[:2, :3, 3])
+    uv[2:, 1] = _project(k, near[None] + poses[2:, :3, 3])
+    uv[:, 2] = _project(k, far[None] + poses[:, :3, 3])
+    observed = np.isfinite(uv[..., 0])
+    own = _reprojection_errors(k, poses, points, uv)
+    chained = _chain_errors(observed, uv, k, poses, points, np.array([0, 0, 1]), 1.0)
+    assert own[observed].max() < 1e-9
+    assert chained[:, :2][observed[:, :2]].max() > 1.0
+    np.testing.assert_array_equal(chained[:, 2], own[:, 2])

@@ -552,6 +552,36 @@ def _triangulated(poses: np.ndarray, points: np.ndarray, inliers: np.ndarray) ->
     return seen & (cos < np.cos(np.radians(_MIN_TRIANGULATION_DEG)))
 
 
+def _joined(observed: np.ndarray, uv: np.ndarray, chains: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The tracks' chains ``chains`` (N,) as C tracks: each track's chain index (N,) (chains in ascending order),
+    and the chains' observations (T, C) and pixels (T, C, 2), from the tracks' observed (T, N) and uv (T, N, 2)."""
+    groups, member = np.unique(chains, return_inverse=True)
+    frame, track = np.nonzero(observed)
+    seen = np.zeros((len(observed), len(groups)), bool)
+    pixels = np.full((len(observed), len(groups), 2), np.nan)
+    seen[frame, member[track]] = True
+    pixels[frame, member[track]] = uv[frame, track]
+    return member, seen, pixels
+
+
+def _chain_errors(observed: np.ndarray, uv: np.ndarray, k: np.ndarray, poses: np.ndarray, points: np.ndarray,
+                  chains: np.ndarray, loss_scale: float) -> np.ndarray:
+    """Pixel distances (T, N) as :func:`_reprojection_errors`, a piece of a strict track scored by one point
+    fitted to all the pieces of its chain ``chains`` (N,): a short piece on a part that moves otherwise (a lid on
+    the body) fits any motion over its few frames with a point of its own, its chain does not. observed (T, N),
+    uv (T, N, 2), points (N, 3)."""
+    err = _reprojection_errors(k, poses, points, uv)
+    _, member, counts = np.unique(chains, return_inverse=True, return_counts=True)
+    pieced = counts[member] > 1
+    if not pieced.any():
+        return err
+    member, joined_seen, joined_uv = _joined(observed & pieced[None], uv, chains)
+    first = np.unique(member, return_index=True)[1]  # each chain's first piece: its point starts the fit
+    joined = _refine_points(joined_seen, joined_uv, k, poses, points[first], loss_scale)
+    err[:, pieced] = _reprojection_errors(k, poses, joined, joined_uv)[:, member[pieced]]
+    return err
+
+
 def _reprojection_errors(k: np.ndarray, poses: np.ndarray, points: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """Pixel distances (T, N) between points (N, 3) moved by poses (T, 4, 4) and observations uv (T, N, 2).
 
@@ -606,6 +636,7 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
     recovered: dict[int, str] = {}
     t_start = time.perf_counter()
     chains = tracks.chains()  # (M,)
+    birth = np.full((num_tracks, 3), np.nan)  # (M, 3) where each track's chain was lifted, body coordinates
     t_recover = 0.0
 
     def recover_pose(t: int, source: int, guess: np.ndarray, replace: bool = False) -> tuple[np.ndarray | None, str]:
@@ -624,6 +655,17 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
 
     def lift(t: int, pose: np.ndarray) -> None:
         new = np.nonzero(tracks.visible[t] & np.isnan(points[:, 0]))[0]
+        # A piece of a strict track starts where the one it carries on from was: the same surface point up to
+        # the cuts' small step errors, so it starts from the point its chain was lifted to (a piece on a part
+        # that moves otherwise stays an outlier to the pose, as a long track would) instead of a fresh lift under
+        # this frame's pose. The lift, not a fitted point: a short piece places its point poorly along the ray.
+        before = tracks.continues[new]
+        inherit = before >= 0
+        inherit[inherit] = np.isfinite(birth[before[inherit], 0])
+        pieces, before = new[inherit], before[inherit]
+        birth[pieces] = birth[before]
+        points[pieces], directions[pieces] = birth[pieces], directions[before]
+        new = new[~inherit]
         if not len(new):
             return
         lifted = shape.raycast(uv[t, new], pose)
@@ -634,6 +676,7 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
             depth = transform_points(pose, points[known])[:, 2]
             lifted[miss] = _lift_by_neighbours(uv[t, new[miss]], uv[t, known], depth, pose, k)
         points[new] = lifted
+        birth[new] = lifted
         centre = invert_transform(pose)[:3, 3]
         ray = lifted - centre
         directions[new] = ray / np.linalg.norm(ray, axis=1, keepdims=True)
@@ -658,15 +701,18 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
         poses[:], points[chosen] = _bundle_adjust(observed, uv[:, chosen], k, poses, points[chosen],
                                                   directions[chosen], free, shape.radius, options, iterations, held,
                                                   share)
-        if final and options.prune_threshold > 0:
+        # Pieces of strict tracks are checked at every refinement: a short piece on a part that moves otherwise
+        # fits any motion over its few frames, and only its chain shows it (long tracks are checked at the end).
+        if options.prune_threshold > 0 and (final or (pieces > 1).any()):
             # Tracks drift rather than jump: drop each one from its first frame past the gate on.
-            err = _reprojection_errors(k, poses, points[chosen], uv[:, chosen])
+            err = _chain_errors(observed, uv[:, chosen], k, poses, points[chosen], chains[chosen],
+                                options.refine_loss_scale)
             # 3.4 median residuals is 4 σ for Gaussian pixel noise (Rayleigh norms).
             gate = max(options.prune_threshold, 3.4 * float(np.median(err[observed])))
             observed &= np.cumsum(observed & (err > gate), axis=0) == 0
             poses[:], points[chosen] = _bundle_adjust(observed, uv[:, chosen], k, poses, points[chosen],
-                                                      directions[chosen], free, shape.radius, options, held=held,
-                                                      prior_share=share)
+                                                      directions[chosen], free, shape.radius, options,
+                                                      iterations, held, share)
         rest = np.setdiff1d(lifted, chosen)
         points[rest] = _refine_points(seen[:, rest], uv[:, rest], k, poses, points[rest], options.refine_loss_scale)
 
