@@ -50,6 +50,13 @@ def reversals(values, tolerance: float = 2.0) -> int:
     return count
 
 
+def _tracks(metadata: dict) -> str:
+    """The tracks column: strict or anchored, and the share of windows that matched their anchor closely."""
+    tracks = metadata.get("tracks") or {}
+    share = tracks.get("anchor_match")
+    return ("strict" if tracks.get("strict") else "anchored") + ("" if share is None else f" ({share:.0%})")
+
+
 def _camera(metadata: dict) -> str:
     """The camera column: what was done, and how much of the background each model tried explains."""
     model = metadata.get("camera_model") or {}
@@ -83,6 +90,7 @@ def run_one(case: str, plot: Path | None) -> dict:
         "yaw_range": float(vec[:, 1].max() - vec[:, 1].min()),
         "yaw_sign_changes": reversals(vec[:, 1]),
         "timings": prior.metadata["timings"], "camera": _camera(prior.metadata),
+        "tracks": _tracks(prior.metadata),
         "failed": len(prior.metadata.get("failed_frames") or {}),
         "recovered": len(prior.metadata.get("recovered_frames") or {}),
         "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
@@ -123,13 +131,16 @@ def main() -> None:
              "fresh process; speed cases give the median of the runs. Angles in degrees: `final` is the rotation "
              "from frame 0 to the last frame, `yaw range` the spread of the rotation vector's vertical component "
              "(camera y axis), `yaw turns` how often it changes direction; failed part-frames are interpolated, "
-             "recovered ones were lost by the tracks and found by alignment (`marionette.source.recover`).", "",
+             "recovered ones were lost by the tracks and found by alignment (`marionette.source.recover`); `tracks`: "
+             "strict or anchored (`--strict-tracks`), with the share of windows that matched their anchor closely "
+             "where strict ones were tried (one-part cases; parts are found on anchored tracks).", "",
              "| case | frames | parts | final angle | yaw range | yaw turns | failed / recovered part-frames "
-             "| camera | total s | peak MB | expected |",
-             "|---|---:|---:|---:|---:|---:|---:|---|---:|---:|---|"]
+             "| tracks | camera | total s | peak MB | expected |",
+             "|---|---:|---:|---:|---:|---:|---:|---|---|---:|---:|---|"]
     for case, r, total, _ in rows:
         lines.append(f"| {case} | {r['frames']} | {r['parts']} | {r['final_angle']:.1f} | {r['yaw_range']:.1f} | "
-                     f"{r['yaw_sign_changes']} | {r['failed']} / {r['recovered']} | {r['camera']} | {total:.1f} | "
+                     f"{r['yaw_sign_changes']} | {r['failed']} / {r['recovered']} | {r['tracks']} | {r['camera']} "
+                     f"| {total:.1f} | "
                      f"{r['peak_mb']:.0f} | {CASES[case][4]} |")
     stages = sorted({k for _, r, _, _ in rows for k in r["timings"] if k != "total"})
     lines += ["", "Time per stage (seconds, the median run):", "",
