@@ -89,3 +89,28 @@ def test_extraction_uses_the_estimated_focal_length(turning):
     assert "focal" in prior.metadata["timings"]
     plain = extract_prior(scene.frames, scene.masks, start, scene.fps)
     assert "focal" not in plain.metadata and plain.intrinsics[0, 0] == start[0, 0]
+
+
+def test_a_cost_still_falling_at_the_edge_keeps_the_given_focal(monkeypatch):
+    # Both searches find their lowest cost at their largest candidate (a fit that drifts, not a valley): the given
+    # focal length is kept, and the note says why. A valley inside the second search is taken.
+    import marionette.source.focal as focal
+
+    k = np.array([[200.0, 0, 80], [0, 200.0, 60], [0, 0, 1]])
+    falling = np.linspace(2.0, 1.0, len(FOCAL_SCALES))
+    valley = np.abs(np.arange(len(FOCAL_SCALES)) - 2.0) + 1.0
+
+    def searches(second_costs):
+        results = iter([(2.0, falling), (1.3, second_costs)])
+
+        def search(tracks, mask, kk, options, seed, progress):
+            scale, costs = next(results)
+            return focal.FocalEstimate(kk[0, 0] * scale, True, FOCAL_SCALES.copy(), costs, "")
+        return search
+
+    monkeypatch.setattr(focal, "_search", searches(falling))
+    kept = estimate_focal(None, None, k)
+    assert not kept.measured and kept.focal == 200.0 and "edge of the search" in kept.note
+    monkeypatch.setattr(focal, "_search", searches(valley))
+    found = estimate_focal(None, None, k)
+    assert found.measured and found.focal == pytest.approx(200.0 * 2.0 * 1.3)

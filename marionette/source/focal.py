@@ -26,8 +26,9 @@ stays where it starts), so it is searched in one dimension instead:
 When the cost barely changes next to its best candidate, or does not climb
 steadily away from it on both sides (a translating or in-plane turning
 object: the focal leaves no trace in the tracks, and what is left is noise),
-the given focal is kept. With several parts the fit follows the body's
-dominant rigid motion (its RANSAC inliers).
+or is still falling at the edge of the last search, the given focal is kept.
+With several parts the fit follows the body's dominant rigid motion (its
+RANSAC inliers).
 """
 
 from __future__ import annotations
@@ -216,7 +217,11 @@ def estimate_focal(tracks: Tracks, mask: np.ndarray, k: np.ndarray, *, options: 
             scales = second.scales * first.focal / given
             last, searches = FocalEstimate(second.focal, True, scales, second.costs, ""), 2
     report(2 * steps)
-    edge = " (the edge of the search)" if np.argmin(last.costs) in (0, len(last.costs) - 1) else ""
+    if np.argmin(last.costs) in (0, len(last.costs) - 1):
+        # Still falling at the last search's edge, from its own start too: a drift of the fit, not a valley.
+        return FocalEstimate(given, False, last.scales, last.costs,
+                             f"kept {given:.0f} px ({_fov(given, k):.0f}° wide): the cost still falls at the edge of "
+                             f"the search ({last.focal:.0f} px, {searches} search{'es' if searches > 1 else ''})")
     return FocalEstimate(last.focal, True, last.scales, last.costs,
-                         f"estimated {last.focal:.0f} px ({_fov(last.focal, k):.0f}° wide){edge}, from "
+                         f"estimated {last.focal:.0f} px ({_fov(last.focal, k):.0f}° wide), from "
                          f"{given:.0f} px ({searches} search{'es' if searches > 1 else ''})")
