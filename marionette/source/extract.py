@@ -96,10 +96,10 @@ class ExtractOptions:
         one starting there, instead of anchoring it again (``track(...,
         strict=True)``): each track one surface point, so clean footage gives
         poses several times closer; compressed or blurred clips get tracks a
-        frame or two long. ``"auto"`` (the default) tries strict tracks on the
-        first frames and keeps them where their windows keep matching. With
-        ``parts`` other than 1, anchored tracks (the part segmentation needs
-        long ones).
+        frame or two long. ``"auto"`` (the default): strict while 70 % of the
+        windows aligned so far keep matching, else tracking starts over
+        anchored. With ``parts`` other than 1, anchored unless ``True`` (the
+        part segmentation needs long tracks).
     relief : float
         Half-thickness of the inflated shape prior relative to the mask's
         inscribed radius (1: a disc mask becomes a sphere).
