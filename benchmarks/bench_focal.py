@@ -54,7 +54,7 @@ estimates moved with the machine, not the code: car-turn 42° on the AMD EPYC of
 Intel Xeon (the same tracks and poses from the code before and after this session's change, bit for bit); train
 72°. What the morning's estimate did to Table 1 is in `table1.md` (car-turn 0.974 / 0.029 -> 0.979 / 0.023 SSIM /
 LPIPS). The search costs a pose fit and seven bundle adjustments, twice where the focal length moved: 4-7 s on
-these 48-frame 320x240 scenes, 1-10 s where it is kept, and up to 13 s on the 80-frame 854x480 clips."""
+these 48-frame 320x240 scenes, 2-8 s where it is kept, and up to 18 s on the 80-frame 854x480 clips."""
 
 
 def plot(curves: dict, path: Path) -> None:
