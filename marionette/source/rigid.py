@@ -552,18 +552,6 @@ def _triangulated(poses: np.ndarray, points: np.ndarray, inliers: np.ndarray) ->
     return seen & (cos < np.cos(np.radians(_MIN_TRIANGULATION_DEG)))
 
 
-def _joined(observed: np.ndarray, uv: np.ndarray, chains: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The tracks' chains ``chains`` (N,) as C tracks: each track's chain index (N,) (chains in ascending order),
-    and the chains' observations (T, C) and pixels (T, C, 2), from the tracks' observed (T, N) and uv (T, N, 2)."""
-    groups, member = np.unique(chains, return_inverse=True)
-    frame, track = np.nonzero(observed)
-    seen = np.zeros((len(observed), len(groups)), bool)
-    pixels = np.full((len(observed), len(groups), 2), np.nan)
-    seen[frame, member[track]] = True
-    pixels[frame, member[track]] = uv[frame, track]
-    return member, seen, pixels
-
-
 def _chain_errors(observed: np.ndarray, uv: np.ndarray, k: np.ndarray, poses: np.ndarray, points: np.ndarray,
                   chains: np.ndarray, loss_scale: float) -> np.ndarray:
     """Pixel distances (T, N) as :func:`_reprojection_errors`, a piece of a strict track scored by one point
@@ -571,11 +559,15 @@ def _chain_errors(observed: np.ndarray, uv: np.ndarray, k: np.ndarray, poses: np
     the body) fits any motion over its few frames with a point of its own, its chain does not. observed (T, N),
     uv (T, N, 2), points (N, 3)."""
     err = _reprojection_errors(k, poses, points, uv)
-    _, member, counts = np.unique(chains, return_inverse=True, return_counts=True)
+    groups, member, counts = np.unique(chains, return_inverse=True, return_counts=True)
     pieced = counts[member] > 1
     if not pieced.any():
         return err
-    member, joined_seen, joined_uv = _joined(observed & pieced[None], uv, chains)
+    frame, piece = np.nonzero(observed & pieced[None])  # the chains' observations, one column per chain
+    joined_seen = np.zeros((len(observed), len(groups)), bool)
+    joined_uv = np.full((len(observed), len(groups), 2), np.nan)
+    joined_seen[frame, member[piece]] = True
+    joined_uv[frame, member[piece]] = uv[frame, piece]
     first = np.unique(member, return_index=True)[1]  # each chain's first piece: its point starts the fit
     joined = _refine_points(joined_seen, joined_uv, k, poses, points[first], loss_scale)
     err[:, pieced] = _reprojection_errors(k, poses, joined, joined_uv)[:, member[pieced]]
