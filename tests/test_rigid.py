@@ -14,7 +14,7 @@ import pytest
 from scipy.optimize import least_squares
 
 from marionette.geometry import axis_angle_to_matrix, make_transform, matrix_to_axis_angle, rotation_angle_deg
-from marionette.source import Tracks
+from marionette.source import Tracks, rigid
 from marionette.source.rigid import (
     RigidOptions,
     ShapePrior,
@@ -189,6 +189,26 @@ def test_fit_rigid_with_one_pixel_of_noise(scene):
     assert 0.8 < fit.reprojection_rms < 1.6  # the noise, neither fitted away nor inflated
 
 
+def test_poses_do_not_follow_rounding_noise_in_the_refinement(scene, monkeypatch):
+    """Another BLAS kernel moves the bundle adjustment's results by ~1e-13, and RANSAC in the next frames turned
+    that into other poses (the backpack clip: degrees apart). What the next frames start from is rounded onto a
+    grid (:mod:`marionette.reproducible`): the poses come out the same bits."""
+    truth, tracks = scene
+    tracks, shape = add_noise(tracks, 1.0), ShapePrior.inflate(np.isfinite(ellipsoid_shape().front), K)
+    reference = fit_rigid(tracks, shape)
+    rng, adjust = np.random.default_rng(0), rigid.bundle_adjust
+
+    def nudged(*args, **kwargs):
+        poses, points = adjust(*args, **kwargs)
+        return (poses * (1 + 1e-13 * rng.standard_normal(poses.shape)),
+                points * (1 + 1e-13 * rng.standard_normal(points.shape)))
+
+    monkeypatch.setattr(rigid, "bundle_adjust", nudged)
+    perturbed = fit_rigid(tracks, shape)
+    assert np.array_equal(perturbed.poses, reference.poses)
+    assert perturbed.failed_frames == reference.failed_frames
+
+
 def test_ransac_rejects_scrambled_tracks(scene):
     truth, tracks = scene
     rng = np.random.default_rng(5)
@@ -300,9 +320,10 @@ def test_frames_the_tracks_lose_are_recovered_and_held():
     # Each lost frame is aligned from the last strong one, with the fitted points seen there.
     assert [(t, s) for t, s, _ in oracle.calls] == [(10, 9), (11, 9), (12, 9), (13, 9)]
     assert all(n > 50 for _, _, n in oracle.calls)
-    # Held in the adjustment: the recovered rotations are the oracle's.
+    # Held in the adjustment: the recovered rotations are the oracle's, up to their rounding onto a grid.
+    rounding = np.degrees(np.sqrt(3) / 2 * rigid._RECOVERED_STEP)
     for t in range(10, 14):
-        assert rotation_angle_deg(fit.poses[t, :3, :3] @ truth[t, :3, :3].T) < 1e-6
+        assert rotation_angle_deg(fit.poses[t, :3, :3] @ truth[t, :3, :3].T) < rounding + 1e-6
     # Tracks born in a recovered frame carry its pose on: the frames after the gap stay right.
     after = slice(14, None)
     assert median_rotation_error(fit.poses[after], truth[after]) < 0.5

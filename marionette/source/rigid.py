@@ -67,6 +67,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..geometry import invert_transform, make_transform, se3_interpolate, transform_points
+from ..reproducible import snap, snap_pose
 from .bundle import bundle_adjust
 from .tracks import Tracks
 
@@ -388,12 +389,25 @@ class RigidFit:
     timings: dict[str, float] = field(default_factory=dict)
 
 
+#: What a frame's PnP starts from, the lifted points (N, 3) and the guessed pose, is rounded to this grid
+#: (the shape prior's units, its RMS radius 1; radians): RANSAC keeps its best random sample, and where two
+#: poses have about the same support (a fast, blurred frame) which one wins follows the last bits of its input
+#: (:mod:`~marionette.reproducible`). Their rounding noise is about 1e-12.
+_PNP_STEP = 2.0 ** -16
+#: A recovered pose is rounded to this coarser grid (at most 0.1°, against the alignment's own error of 0.5-4°):
+#: the alignment renders in float32, whose last bits follow the CPU, and stops after a fixed number of steps;
+#: numba compiling for another CPU moved the backpack's recovered pose by 1.4e-5 (a chance of about 4 % per
+#: recovered frame that two machines round it differently).
+_RECOVERED_STEP = 2.0 ** -9
+
+
 def _pnp(points: np.ndarray, uv: np.ndarray, k: np.ndarray, guess: np.ndarray,
          options: RigidOptions) -> tuple[np.ndarray | None, np.ndarray, str]:
-    """RANSAC PnP from a guessed pose (4, 4), then LM on the inliers.
+    """RANSAC PnP from a guessed pose (4, 4), then LM on the inliers; points (N, 3) and guess rounded first.
 
     Returns (pose or None, inlier mask (N,), reason for a failure).
     """
+    points, guess = snap(points, _PNP_STEP), snap_pose(guess, _PNP_STEP)
     rvec = cv2.Rodrigues(guess[:3, :3])[0]
     tvec = guess[:3, 3:].copy()
     ok, rvec, tvec, inl = cv2.solvePnPRansac(
@@ -640,10 +654,10 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
         seen = np.nonzero(tracks.visible[source] & np.isfinite(points[:, 0]))[0]
         err = _reprojection_errors(k, poses[source][None], points[seen], uv[source, seen][None])[0]
         seen = seen[err <= 2 * options.ransac_threshold]
-        found = recover(t, source, poses[source], guess, uv[source, seen],
-                        transform_points(poses[source], points[seen])[:, 2], replace)
+        aligned, note = recover(t, source, poses[source], guess, uv[source, seen],
+                                transform_points(poses[source], points[seen])[:, 2], replace)
         t_recover += time.perf_counter() - t0
-        return found
+        return (None if aligned is None else snap_pose(aligned, _RECOVERED_STEP)), note
 
     def lift(t: int, pose: np.ndarray) -> None:
         new = np.nonzero(tracks.visible[t] & np.isnan(points[:, 0]))[0]
@@ -707,6 +721,8 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
                                                       iterations, held, share)
         rest = np.setdiff1d(lifted, chosen)
         points[rest] = _refine_points(seen[:, rest], uv[:, rest], k, poses, points[rest], options.refine_loss_scale)
+        # What the next frames start from, rounded as PnP's inputs are (_PNP_STEP).
+        poses[:upto + 1], points[lifted] = snap_pose(poses[:upto + 1], _PNP_STEP), snap(points[lifted], _PNP_STEP)
 
     lift(0, poses[0])
     inliers[0] = tracks.visible[0] & np.isfinite(points[:, 0])
