@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..camera import fov_from_focal
+from ..reproducible import snap
 from .bundle import bundle_adjust, huber_cost
 from .rigid import RigidOptions, ShapePrior, fit_rigid
 from .tracks import Tracks
@@ -58,6 +59,9 @@ _MIN_OBSERVATIONS = 3
 _SETTLED = 0.05
 #: Cost evaluations of each bundle adjustment.
 _BA_EVALUATIONS = 40
+#: An estimate is rounded to this many pixels: far finer than its accuracy (a few percent), far coarser than
+#: the 1e-9 px by which another BLAS kernel moves it (car-turn: 964 px, and 911 px from a focal 7e-10 px off).
+_FOCAL_STEP = 2.0 ** -6
 #: Huber scale of the reprojection cost (pixels), as the pose fit's refinement uses.
 _LOSS_SCALE = 1.0
 
@@ -161,7 +165,9 @@ def _search(tracks: Tracks, mask: np.ndarray, k: np.ndarray, options: RigidOptio
         return FocalEstimate(given, False, FOCAL_SCALES.copy(), costs,
                              f"kept {given:.0f} px ({_fov(given, k):.0f}° wide): the tracks barely tell focal "
                              f"lengths apart ({why})")
-    return FocalEstimate(given * scale, True, FOCAL_SCALES.copy(), costs, "")
+    # Rounded: the next search and the prior start from it, and the last bits of the costs (their bundle
+    # adjustments run on BLAS) must not reach the pose fit's RANSAC (:mod:`~marionette.reproducible`).
+    return FocalEstimate(float(snap(given * scale, _FOCAL_STEP)), True, FOCAL_SCALES.copy(), costs, "")
 
 
 def _fov(focal: float, k: np.ndarray) -> float:

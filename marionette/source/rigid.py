@@ -394,6 +394,8 @@ class RigidFit:
 #: poses have about the same support (a fast, blurred frame) which one wins follows the last bits of its input
 #: (:mod:`~marionette.reproducible`). Their rounding noise is about 1e-12.
 _PNP_STEP = 2.0 ** -16
+#: A fitted point farther than this many shape radii from the body's centre is dropped (and lifted again).
+_MAX_REACH = 10.0
 #: A recovered pose is rounded to this coarser grid (at most 0.1°, against the alignment's own error of 0.5-4°):
 #: the alignment renders in float32, whose last bits follow the CPU, and stops after a fixed number of steps;
 #: numba compiling for another CPU moved the backpack's recovered pose by 1.4e-5 (a chance of about 4 % per
@@ -721,6 +723,11 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
                                                       iterations, held, share)
         rest = np.setdiff1d(lifted, chosen)
         points[rest] = _refine_points(seen[:, rest], uv[:, rest], k, poses, points[rest], options.refine_loss_scale)
+        # A point sent far from the body is not on it: its track's rays were nearly parallel, and its place is
+        # noise (the backpack's reached 3,000 radii, where two BLAS kernels put it 5e-4 apart). It is lifted
+        # afresh where its track is next seen.
+        far = np.linalg.norm(points[lifted] - shape.centroid, axis=1) > _MAX_REACH * shape.radius
+        points[lifted[far]] = np.nan
         # What the next frames start from, rounded as PnP's inputs are (_PNP_STEP).
         poses[:upto + 1], points[lifted] = snap_pose(poses[:upto + 1], _PNP_STEP), snap(points[lifted], _PNP_STEP)
 
