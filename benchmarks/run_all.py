@@ -57,6 +57,7 @@ BENCHES = (
     Bench("bench_focal.py", "focal.md", quick=("--seeds", "1", "--frames", "24", "--size", "160x120")),
     Bench("bench_parts.py", "parts.md", quick=("--seeds", "1", "--frames", "24", "--size", "160x120")),
     Bench("bench_extract_real.py", "extract_real.md", needs_data=True, quick=("--runs", "1")),
+    Bench("bench_reproducibility_real.py", "reproducibility_real.md", needs_data=True),
     Bench("bench_foreground.py", "foreground.md", needs_data=True),
     Bench("bench_rasterizer.py", "rasterizer.md", quick=("--runs", "3", "--no-reference")),
     Bench("bench_transfer.py", "transfer.md", quick=("--runs", "1", "--gaussians", "50000")),
@@ -87,6 +88,9 @@ SECTIONS = (
     ("Scaling", "Time against source frames and target Gaussians, with the measured growth.", ("scaling.md",)),
     ("Refinement ablation", "Each refinement step added in turn on a synthetic hinge and a real multi-part clip:"
      " rigidity, boundary separation, detached seams, jerk.", ("ablation.md",)),
+    ("The same answer on every machine", "Extraction on the real clips under another BLAS kernel, numba compiling"
+     " for another CPU and NumPy without AVX-512: the poses each gives, against this machine's own.",
+     ("reproducibility_real.md",)),
     ("More measurements", "Extraction on the real clips, automatic foreground, transfer speed.",
      ("extract_real.md", "foreground.md", "transfer.md")),
 )

@@ -394,7 +394,7 @@ class RigidFit:
 #: poses have about the same support (a fast, blurred frame) which one wins follows the last bits of its input
 #: (:mod:`~marionette.reproducible`). Their rounding noise is about 1e-12.
 _PNP_STEP = 2.0 ** -16
-#: A fitted point farther than this many shape radii from the body's centre is dropped (and lifted again).
+#: A fitted point farther than this many shape radii from the body's centre is dropped, with its track.
 _MAX_REACH = 10.0
 #: A recovered pose is rounded to this coarser grid (at most 0.1°, against the alignment's own error of 0.5-4°):
 #: the alignment renders in float32, whose last bits follow the CPU, and stops after a fixed number of steps;
@@ -645,6 +645,7 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
     t_start = time.perf_counter()
     chains = tracks.chains()  # (M,)
     birth = np.full((num_tracks, 3), np.nan)  # (M, 3) where each track's chain was lifted, body coordinates
+    dropped = np.zeros(num_tracks, bool)  # (M,) tracks whose fitted point went far from the body
     t_recover = 0.0
 
     def recover_pose(t: int, source: int, guess: np.ndarray, replace: bool = False) -> tuple[np.ndarray | None, str]:
@@ -662,7 +663,7 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
         return (None if aligned is None else snap_pose(aligned, _RECOVERED_STEP)), note
 
     def lift(t: int, pose: np.ndarray) -> None:
-        new = np.nonzero(tracks.visible[t] & np.isnan(points[:, 0]))[0]
+        new = np.nonzero(tracks.visible[t] & np.isnan(points[:, 0]) & ~dropped)[0]
         # A piece of a strict track starts where the one it carries on from was: the same surface point up to
         # the cuts' small step errors, so it starts from the point its chain was lifted to (a piece on a part
         # that moves otherwise stays an outlier to the pose, as a long track would) instead of a fresh lift under
@@ -723,11 +724,12 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
                                                       iterations, held, share)
         rest = np.setdiff1d(lifted, chosen)
         points[rest] = _refine_points(seen[:, rest], uv[:, rest], k, poses, points[rest], options.refine_loss_scale)
-        # A point sent far from the body is not on it: its track's rays were nearly parallel, and its place is
-        # noise (the backpack's reached 3,000 radii, where two BLAS kernels put it 5e-4 apart). It is lifted
-        # afresh where its track is next seen.
+        # A point sent far from the body is not on it: its track's rays were nearly parallel, or it follows
+        # another body, and its place is noise (the backpack's reached 3,000 radii, where two BLAS kernels put
+        # it 5e-4 apart). Its track is left out from here on (lifted again, a lid's track fitted with its box
+        # pulled the box's poses: the hinge as one part, 6.5° off instead of 0.2°).
         far = np.linalg.norm(points[lifted] - shape.centroid, axis=1) > _MAX_REACH * shape.radius
-        points[lifted[far]] = np.nan
+        points[lifted[far]], dropped[lifted[far]] = np.nan, True
         # What the next frames start from, rounded as PnP's inputs are (_PNP_STEP).
         poses[:upto + 1], points[lifted] = snap_pose(poses[:upto + 1], _PNP_STEP), snap(points[lifted], _PNP_STEP)
 
