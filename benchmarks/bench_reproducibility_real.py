@@ -69,17 +69,6 @@ better answer: the backpack's last frames stay hard (the bag turns its back to t
 code before fails it); `tests/test_determinism.py` checks thread counts and OpenBLAS kernels on synthetic scenes."""
 
 
-def _cpu_name() -> str:
-    """The CPU's model name (Linux), else what ``platform`` knows."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
-
-
 def run_one(case: str, out: Path) -> None:
     """Extract one case in this process; save part 0's poses and the figures."""
     import warnings
@@ -113,12 +102,13 @@ def main() -> None:
     if not DATA.is_dir():
         sys.exit(f"needs the real clips in {DATA}")
     import numpy as np
+    from bench_rasterizer import cpu_name
 
     from marionette.geometry import rotation_angle_deg
 
     lines = ["# Real clips under other CPU code paths", "",
              f"`python benchmarks/bench_reproducibility_real.py` on {platform.machine()} "
-             f"({_cpu_name()}), {os.cpu_count()} cores. Default options, each run in a "
+             f"({cpu_name()}), {os.cpu_count()} cores. Default options, each run in a "
              "fresh process with one BLAS thread; one row per clip and configuration. `focal px`: the prior's, "
              "estimated with `--focal auto`, else the default 60° field of view. `apart`: the angle between "
              "part 0's rotation in that run and in the native run, median and largest over frames (degrees).", "",
