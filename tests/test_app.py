@@ -104,11 +104,31 @@ def test_two_sessions_at_once_each_get_their_own_video(app, inputs):
     ({"speed": 0}, "speed must be within"),
     ({"camera": "crane"}, "camera must be one of"),
     ({"motion": "camera"}, "motion must be one of"),
+    ({"parts": "many"}, "parts must be 'auto' or an integer"),
+    ({"focal": -300}, "focal must be 'auto' or a positive number"),
 ])
 def test_bad_run_settings_get_a_message(app, settings, message):
     session = call(app, "/api/session")[1]["session"]
     status, reply = call(app, f"/api/run?session={session}", settings)
     assert status == 400 and message in reply["error"]
+
+
+def test_parts_and_focal_reach_the_extraction(app, inputs, monkeypatch):
+    import marionette.app.jobs as jobs
+
+    seen = {}
+
+    def extract(source, **kwargs):
+        seen.update(kwargs)
+        raise jobs.InputError("stopped after the settings were seen")
+
+    monkeypatch.setattr(jobs.pipeline, "extract", extract)
+    session = call(app, "/api/session")[1]["session"]
+    for kind, path in zip(("source", "target"), inputs):
+        assert call(app, f"/api/upload?session={session}&kind={kind}&name={path.name}", path.read_bytes())[0] == 200
+    assert call(app, f"/api/run?session={session}", {"parts": "auto", "focal": "auto"})[0] == 200
+    assert finished(app, session)["message"] == "stopped after the settings were seen"
+    assert seen["options"].parts == "auto" and seen["focal"] == "auto"
 
 
 @pytest.mark.parametrize("name, data, message", [

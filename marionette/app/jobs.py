@@ -26,6 +26,7 @@ from ..io import read_image, write_image
 from ..io.video import IMAGE_SUFFIXES, open_video
 from ..progress import ProgressCallback, Reporter
 from ..segment import Prompt, prompted_mask
+from ..source.extract import ExtractOptions
 from ..target.lift import LiftOptions, object_mask
 
 __all__ = ["Settings", "Session", "Sessions", "VIDEO_SUFFIXES"]
@@ -38,8 +39,10 @@ _MAX_SIDE = pipeline.DEFAULT_MAX_SIDE
 
 @dataclass(frozen=True)
 class Settings:
-    """What the page sets for a run: playback, camera, motion (filmed or world), background, and the prompts
-    (pixels of the first source frame and of the photo, as uploaded)."""
+    """What the page sets for a run: playback, camera, motion (filmed or world), background, the prompts
+    (pixels of the first source frame and of the photo, as uploaded), and the extraction's part count
+    (``--parts``: a number or ``"auto"``) and focal length (``--focal``: None for the default field of
+    view, ``"auto"``, or pixels of the uploaded clip)."""
 
     speed: float = 1.0
     frames: int | None = None
@@ -48,6 +51,8 @@ class Settings:
     background: tuple[float, float, float] | str = (1.0, 1.0, 1.0)
     source_prompt: Prompt | None = None
     target_prompt: Prompt | None = None
+    parts: int | str = 1
+    focal: float | str | None = None
 
 
 class _JobReporter(Reporter):
@@ -141,7 +146,8 @@ class Session:
             if self.source is None or self.target is None:
                 raise InputError("upload a source clip and a photo first")
             reporter = _JobReporter(status)
-            prior = pipeline.extract(self.source, prompt=settings.source_prompt, reporter=reporter)
+            prior = pipeline.extract(self.source, focal=settings.focal, options=ExtractOptions(parts=settings.parts),
+                                     prompt=settings.source_prompt, reporter=reporter)
             with reporter.stage("lifting target", 1):
                 lifted = pipeline.load_target(self.target, options=LiftOptions(), prior=prior,
                                               prompt=settings.target_prompt)

@@ -27,7 +27,7 @@ from pathlib import Path
 from urllib.parse import parse_qs, urlparse
 
 from ..errors import InputError
-from ..options import parse_background
+from ..options import parse_background, parse_focal, parse_parts
 from ..prior import MOTION_FRAMES
 from ..render.camera_path import CAMERA_MOVES
 from ..segment import Prompt
@@ -83,8 +83,18 @@ def _settings(body: dict) -> Settings:
             background = parse_background(background)
         except ValueError as e:
             raise InputError(f"background {e}, got {background!r}") from None
+    try:
+        parts = parse_parts(body.get("parts", 1))
+    except ValueError as e:
+        raise InputError(f"parts {e}, got {body.get('parts')!r}") from None
+    focal = body.get("focal")
+    if focal is not None:
+        try:
+            focal = parse_focal(focal)
+        except ValueError as e:
+            raise InputError(f"focal {e}, got {focal!r}") from None
     return Settings(speed, frames, camera, motion, background, _prompt(body.get("source")),
-                    _prompt(body.get("target")))
+                    _prompt(body.get("target")), parts, focal)
 
 
 class _Handler(BaseHTTPRequestHandler):
