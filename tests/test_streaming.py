@@ -59,7 +59,9 @@ def test_max_pixels_downscales_with_a_warning(clip):
     video.frames.close()
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # within the limit: no warning, full size
-        assert open_video(root / "clip.mp4", max_pixels=20 * 160 * 120).size == (160, 120)
+        full = open_video(root / "clip.mp4", max_pixels=20 * 160 * 120)
+    full.frames.close()
+    assert full.size == (160, 120)
     with pytest.raises(InputError, match="select fewer frames"):
         open_video(root / "clip.mp4", max_pixels=100)
     with pytest.raises(InputError, match="max_pixels"):
