@@ -93,6 +93,7 @@ def test_two_sessions_at_once_each_get_their_own_video(app, inputs):
     for session in sessions:
         state = finished(app, session)
         assert state["state"] == "done", state
+        assert state["source"].startswith(f"source motion: 1 part over {FRAMES} frames, focal length")
         with urllib.request.urlopen(f"{app.url}/api/file?session={session}&name=result.mp4", timeout=10) as r:
             path = app.sessions.get(session).folder / "check.mp4"
             path.write_bytes(r.read())
@@ -111,6 +112,18 @@ def test_bad_run_settings_get_a_message(app, settings, message):
     session = call(app, "/api/session")[1]["session"]
     status, reply = call(app, f"/api/run?session={session}", settings)
     assert status == 400 and message in reply["error"]
+
+
+def test_the_source_summary_names_lost_frames():
+    from marionette.app.jobs import source_summary
+    from marionette.prior import SpatPrior
+
+    prior = SpatPrior.identity(30, fps=10, image_size=(64, 48), intrinsics=np.diag([55.4, 55.4, 1.0]),
+                               centroid=np.zeros(3), radius=1.0, metadata={"failed_frames": {"0:4": "", "0:5": ""}})
+    assert source_summary(prior) == ("source motion: 1 part over 30 frames, focal length 55 px; pose estimation "
+                                     "failed at 2 part-frames, their poses interpolated")
+    prior.metadata["failed_frames"] = {}
+    assert source_summary(prior) == "source motion: 1 part over 30 frames, focal length 55 px"
 
 
 def test_parts_and_focal_reach_the_extraction(app, inputs, monkeypatch):

@@ -55,6 +55,16 @@ class Settings:
     focal: float | str | None = None
 
 
+def source_summary(prior) -> str:
+    """One line on the extracted motion for the page: parts, focal length, and frames whose pose was lost."""
+    parts = f"{prior.num_parts} part{'s' if prior.num_parts > 1 else ''}"
+    line = f"source motion: {parts} over {prior.num_frames} frames, focal length {prior.intrinsics[0, 0]:.0f} px"
+    failed = len(prior.metadata.get("failed_frames") or {})
+    if failed:
+        line += f"; pose estimation failed at {failed} part-frames, their poses interpolated"
+    return line
+
+
 class _JobReporter(Reporter):
     """A quiet reporter that keeps the current stage and its share done for the page."""
 
@@ -80,7 +90,7 @@ class Session:
     folder: Path
     source: Path | None = None
     target: Path | None = None
-    status: dict = field(default_factory=lambda: {"state": "idle"})
+    status: dict = field(default_factory=lambda: {"state": "idle"})  # also "source": source_summary's line
     lock: threading.Lock = field(default_factory=threading.Lock)
 
     def upload(self, kind: str, name: str, data: bytes) -> dict:
@@ -148,6 +158,7 @@ class Session:
             reporter = _JobReporter(status)
             prior = pipeline.extract(self.source, focal=settings.focal, options=ExtractOptions(parts=settings.parts),
                                      prompt=settings.source_prompt, reporter=reporter)
+            status["source"] = source_summary(prior)
             with reporter.stage("lifting target", 1):
                 lifted = pipeline.load_target(self.target, options=LiftOptions(), prior=prior,
                                               prompt=settings.target_prompt)

@@ -5,7 +5,7 @@
     POST /api/upload?session=&kind=&name=      body: the file → {"width", "height", "frames"?}
     POST /api/mask?session=&kind=              body: {"points", "box", "exclude"} → {"preview": url}
     POST /api/run?session=                     body: the settings → {"state": "queued"}
-    GET  /api/status?session=                  → {"state", "stage", "progress", "video"?, "message"?}
+    GET  /api/status?session=                  → {"state", "stage", "progress", "source"?, "video"?, "message"?}
     GET  /api/file?session=&name=              a file of the session (previews, result.mp4)
 
 Bad input is a 400 with ``{"error": "…"}`` (the page shows it); the server
