@@ -194,6 +194,7 @@ def test_chromium_upload_click_run_and_play(app, inputs):
         page.evaluate("document.getElementById('speed').value = '0.5'; document.getElementById('run').click()")
         page.until("!document.getElementById('video').hidden && document.getElementById('video').readyState >= 1")
         duration = page.evaluate("document.getElementById('video').duration")
+        summary = page.evaluate("document.getElementById('summary').textContent")
         url = page.evaluate("document.getElementById('video').src")
         wait(lambda image: True)
     with urllib.request.urlopen(url, timeout=10) as r:
@@ -202,6 +203,7 @@ def test_chromium_upload_click_run_and_play(app, inputs):
     path.write_bytes(data)
     played = read_video(path)
     assert played.frames.shape[0] == 2 * FRAMES - 1  # half speed
+    assert summary.startswith(f"source motion: 1 part over {FRAMES} frames")
     assert duration == pytest.approx(played.frames.shape[0] / played.fps, rel=0.2)
 
 
