@@ -7,6 +7,7 @@ import pytest
 
 from marionette.geometry import axis_angle_to_matrix, invert_transform, make_transform
 from marionette.source.camera_motion import _scale
+from marionette.source import camera_pose
 from marionette.source.camera_pose import _refine, fit_camera_poses
 from marionette.source.tracks import Tracks
 
@@ -86,6 +87,25 @@ def test_it_repeats_exactly_and_refuses_a_background_it_cannot_fix():
     rng = np.random.default_rng(5)
     scrambled = np.where(tracks.visible[..., None], rng.uniform(0, [W, H], tracks.uv.shape), np.nan)
     assert fit_camera_poses(Tracks(scrambled.astype(np.float32), tracks.visible, tracks.start), K) is None
+
+
+def test_the_poses_do_not_follow_rounding_noise(monkeypatch):
+    """Another BLAS kernel (OpenBLAS's without FMA) moves the triangulations by ~1e-13, and the next frames'
+    RANSAC turned that into other cameras (the backpack clip: 0.35 units apart by its end). What each step hands
+    on is rounded onto a grid (:mod:`marionette.reproducible`): the cameras come out the same bits."""
+    tracks = background_tracks(travelling_camera(), noise=1.0)
+    reference = fit_camera_poses(tracks, K)
+    rng = np.random.default_rng(0)
+    triangulate, triangulate_all = cv2.triangulatePoints, camera_pose._triangulate_all
+
+    def nudged(values):
+        return values * (1 + 1e-13 * rng.standard_normal(values.shape))
+
+    monkeypatch.setattr(camera_pose.cv2, "triangulatePoints", lambda *args: nudged(triangulate(*args)))
+    monkeypatch.setattr(camera_pose, "_triangulate_all", lambda *args: nudged(triangulate_all(*args)))
+    perturbed = fit_camera_poses(tracks, K)
+    assert np.array_equal(perturbed.world_to_camera, reference.world_to_camera)
+    assert np.array_equal(perturbed.points, reference.points, equal_nan=True)
 
 
 @pytest.mark.parametrize("object_depth", [2.0, 7.5])

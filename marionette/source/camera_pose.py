@@ -46,9 +46,18 @@ import cv2
 import numpy as np
 
 from ..geometry import invert_transform, make_transform, rotation_between_directions
+from ..reproducible import snap, snap_pose
 from .tracks import Tracks
 
 __all__ = ["CameraPoses", "bearings_of", "fit_camera_poses"]
+
+#: Every point and pose the chain hands on (a triangulation, a PnP fit, a round of the bundle adjustment) is
+#: rounded to this grid (units of the first two views' baseline; radians): each frame's RANSAC keeps its best
+#: random sample, and which one wins can follow the last bits of its input, which the matrix products and
+#: LAPACK solves in between take from the BLAS kernel (without FMA, OpenBLAS's Sandybridge kernel put the
+#: backpack's camera 0.35 units off by the clip's end). Their rounding noise is about 1e-13
+#: (:mod:`~marionette.reproducible`).
+_STEP = 2.0 ** -20
 
 
 @dataclass(frozen=True)
@@ -91,7 +100,7 @@ def _triangulate(pose_a: np.ndarray, pose_b: np.ndarray, uv_a: np.ndarray, uv_b:
     homogeneous = cv2.triangulatePoints(k @ pose_a[:3], k @ pose_b[:3], uv_a.T.astype(np.float64),
                                         uv_b.T.astype(np.float64))
     with np.errstate(divide="ignore", invalid="ignore"):
-        points = (homogeneous[:3] / homogeneous[3]).T
+        points = snap((homogeneous[:3] / homogeneous[3]).T, _STEP)
     good = np.all(np.isfinite(points), axis=1)
     centres = []
     for pose, uv in ((pose_a, uv_a), (pose_b, uv_b)):
@@ -144,7 +153,7 @@ def _two_views(uv: np.ndarray, visible: np.ndarray, first: int, second: int, k: 
     if essential is None or essential.shape != (3, 3):
         return np.eye(4), np.empty(0, int), np.empty((0, 3))
     _, rotation, translation, mask = cv2.recoverPose(essential, uv[first, common], uv[second, common], k, mask=mask)
-    pose = make_transform(rotation, translation.ravel())
+    pose = snap_pose(make_transform(rotation, translation.ravel()), _STEP)
     inl = common[mask.ravel() > 0]
     found, good = _triangulate(np.eye(4), pose, uv[first, inl], uv[second, inl], k, 2 * threshold_px, min_angle_deg)
     return pose, inl[good], found[good]
@@ -205,7 +214,7 @@ def _refine(poses: np.ndarray, points: np.ndarray, uv: np.ndarray, visible: np.n
     and the linear triangulation has no defence against them. → (poses (T, 4, 4), points (M, 3))."""
     for _ in range(rounds):
         use = visible & solved[:, None] & (_reprojection_errors(poses, points, uv, k) < 3 * threshold_px)
-        points = _triangulate_all(poses, uv, use, k)
+        points = snap(_triangulate_all(poses, uv, use, k), _STEP)
         use &= _reprojection_errors(poses, points, uv, k) < 3 * threshold_px
         for t in np.nonzero(solved & (np.arange(len(poses)) != anchor))[0]:
             sel = np.nonzero(use[t] & np.isfinite(points[:, 0]))[0]
@@ -214,9 +223,9 @@ def _refine(poses: np.ndarray, points: np.ndarray, uv: np.ndarray, visible: np.n
             # Column vectors: given a (3,) translation, OpenCV 5 leaves it where it was.
             rvec, tvec = cv2.solvePnPRefineLM(points[sel], uv[t, sel], k, None, cv2.Rodrigues(poses[t, :3, :3])[0],
                                               poses[t, :3, 3].reshape(3, 1).copy())
-            poses[t] = make_transform(cv2.Rodrigues(rvec)[0], tvec.ravel())
+            poses[t] = snap_pose(make_transform(cv2.Rodrigues(rvec)[0], tvec.ravel()), _STEP)
     use = visible & solved[:, None] & (_reprojection_errors(poses, points, uv, k) < 3 * threshold_px)
-    return poses, _triangulate_all(poses, uv, use, k)
+    return poses, snap(_triangulate_all(poses, uv, use, k), _STEP)
 
 
 def fit_camera_poses(tracks: Tracks, K: np.ndarray, *, threshold_px: float = 1.0, min_points: int = 12,
@@ -280,7 +289,7 @@ def fit_camera_poses(tracks: Tracks, K: np.ndarray, *, threshold_px: float = 1.0
             if ok and inliers is not None and len(inliers) >= min_points:
                 sel = usable[inliers.ravel()]
                 rvec, tvec = cv2.solvePnPRefineLM(points[sel], uv[t, sel], k, None, rvec, tvec)
-                poses[t] = make_transform(cv2.Rodrigues(rvec)[0], tvec.ravel())
+                poses[t] = snap_pose(make_transform(cv2.Rodrigues(rvec)[0], tvec.ravel()), _STEP)
                 solved[t] = True
         if not solved[t]:
             poses[t] = previous
