@@ -3,7 +3,9 @@
 Each clip is extracted (default options) in a fresh process per
 configuration: as this machine runs it, and with one CPU-dependent code path
 switched to what another machine would take (OpenBLAS's kernel,
-``OPENBLAS_CORETYPE``, which some CPUs set; numba compiling for another CPU,
+``OPENBLAS_CORETYPE``, which some CPUs set: Haswell's, and Sandybridge's,
+which has no fused multiply-add and so rounds even a 3x3 matrix product
+otherwise; numba compiling for another CPU,
 ``NUMBA_CPU_NAME``; NumPy's SIMD dispatch turned down from AVX-512). The
 table gives, per configuration, the part count, failed and recovered
 frames, the final rotation and how far each frame's rotation of part 0 lies
@@ -40,6 +42,7 @@ CASES = {
 CONFIGS = {
     "native": {},
     "OpenBLAS Haswell kernel": {"OPENBLAS_CORETYPE": "Haswell"},
+    "OpenBLAS Sandybridge kernel (no FMA)": {"OPENBLAS_CORETYPE": "Sandybridge"},
     "numba for Haswell": {"NUMBA_CPU_NAME": "haswell"},
     "NumPy without AVX-512": {"NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL AVX512_SPR"},
 }

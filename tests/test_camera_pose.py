@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from marionette.geometry import axis_angle_to_matrix, invert_transform, make_transform
-from marionette.source.camera_motion import _scale
 from marionette.source import camera_pose
+from marionette.source.camera_motion import _scale
 from marionette.source.camera_pose import _refine, fit_camera_poses
 from marionette.source.tracks import Tracks
 

@@ -144,12 +144,12 @@ def test_grabcut_repeats_exactly_in_one_process():
 def other_blas_kernel() -> str:
     """An OpenBLAS kernel other than the one this machine picks by itself.
 
-    The kernel changes the last bits of every LAPACK/BLAS result. Haswell is what some CPUs here force;
-    where it is the default kernel anyway, Sandybridge (another x86-64 kernel, other rounding) makes
-    the perturbation real.
+    The kernel changes the last bits of every LAPACK/BLAS result. On x86-64, Sandybridge's has no fused
+    multiply-add, so it rounds even a 3x3 matrix product otherwise than Haswell's, SkylakeX's or Zen's (which
+    round small products alike); where it is the default kernel, Haswell is the other.
     """
     picked = {info.get("architecture") for info in threadpoolctl.threadpool_info() if info["user_api"] == "blas"}
-    return "Sandybridge" if "Haswell" in picked and platform.machine() in ("x86_64", "AMD64") else "Haswell"
+    return "Sandybridge" if "Sandybridge" not in picked and platform.machine() in ("x86_64", "AMD64") else "Haswell"
 
 
 #: The machine's own kernel on every thread, then another kernel on one thread.
