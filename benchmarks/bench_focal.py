@@ -52,9 +52,11 @@ next to its lowest point), and a cost still falling at the edge of the last sear
 valley (the same case on chains: lowest at 2x, then flat from there). The real clips keep anchored tracks. Their
 estimates moved with the machine, not the code: car-turn 42° on the AMD EPYC of the morning's run, 45° on this
 Intel Xeon (the same tracks and poses from the code before and after this session's change, bit for bit); train
-72°. What the morning's estimate did to Table 1 is in `table1.md` (car-turn 0.974 / 0.029 -> 0.979 / 0.023 SSIM /
-LPIPS). The search costs a pose fit and seven bundle adjustments, twice where the focal length moved: 4-7 s on
-these 48-frame 320x240 scenes, 2-8 s where it is kept, and up to 18 s on the 80-frame 854x480 clips."""
+72°. Since the rounding of 2026-12-05's afternoon (`reproducibility_real.md`) they no longer do: car-turn 47° (991
+px, the same under every BLAS kernel tried there), train 74°. What the morning's estimate did to Table 1 is in
+`table1.md` (car-turn 0.974 / 0.029 -> 0.979 / 0.023 SSIM / LPIPS). The search costs a pose fit and seven bundle
+adjustments, twice where the focal length moved: 4-7 s on these 48-frame 320x240 scenes, 2-8 s where it is kept,
+and up to 18 s on the 80-frame 854x480 clips."""
 
 
 def plot(curves: dict, path: Path) -> None:
