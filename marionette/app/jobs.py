@@ -24,6 +24,7 @@ from .. import pipeline
 from ..errors import InputError
 from ..io import read_image, write_image
 from ..io.video import IMAGE_SUFFIXES, open_video
+from ..prior import SpatPrior
 from ..progress import ProgressCallback, Reporter
 from ..segment import Prompt, prompted_mask
 from ..source.extract import ExtractOptions
@@ -55,7 +56,7 @@ class Settings:
     focal: float | str | None = None
 
 
-def source_summary(prior) -> str:
+def source_summary(prior: SpatPrior) -> str:
     """One line on the extracted motion for the page: parts, focal length, and frames whose pose was lost."""
     parts = f"{prior.num_parts} part{'s' if prior.num_parts > 1 else ''}"
     line = f"source motion: {parts} over {prior.num_frames} frames, focal length {prior.intrinsics[0, 0]:.0f} px"
