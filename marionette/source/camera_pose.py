@@ -29,7 +29,8 @@ A single video fixes the translation only up to scale: it comes out in
 units of the two views' baseline, and the caller sets the scale
 (:func:`~marionette.source.camera_motion.estimate_camera_motion` puts the
 background next to the object at the object's depth). OpenCV's RANSAC is
-seeded, so results repeat.
+seeded, so results repeat; what each step hands on is rounded onto a fine
+grid (``_STEP``), so they repeat under another machine's BLAS kernel too.
 
 Known limits: a single plane (a bare wall) leaves the two-view geometry
 ambiguous; the intrinsics are taken as given (a wrong focal length is
