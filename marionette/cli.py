@@ -16,7 +16,7 @@ import sys
 import time
 import tomllib
 import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Optional
@@ -32,6 +32,7 @@ from .io.atomic import StagedOutputs, check_output_dir, check_output_folder, che
 from .io.ply import PLY_FRAME_NAME
 from .io.video import DEFAULT_MAX_PIXELS, DEFAULT_MAX_SIDE, MASK_FRAME_NAME
 from .options import (
+    checked,
     parse_background,
     parse_box,
     parse_focal,
@@ -194,16 +195,6 @@ def _prior_figures(prior) -> dict[str, Any]:
             "failed_frames": len(prior.metadata.get("failed_frames") or {})}
 
 
-def _parsed(option: str, parse: Callable[[Any], Any], value: Any) -> Any:
-    """``value`` checked by a parser of :mod:`marionette.options`; None stays None."""
-    if value is None:
-        return None
-    try:
-        return parse(value)
-    except ValueError as e:
-        raise InputError(f"{option} {e}, got {value!r}") from None
-
-
 def _output_file(path: Optional[Path], suffix: str, option: str) -> None:
     """Check an output file (None: not asked for): the right suffix and a writable place."""
     if path is None:
@@ -297,9 +288,9 @@ def _prompt(prefix: str, points: Optional[list[str]], box: Optional[str],
 
     if not points and box is None and not exclude:
         return None
-    prompt = Prompt(tuple(_parsed(f"--{prefix}-point", parse_point, p) for p in points or ()),
-                    _parsed(f"--{prefix}-box", parse_box, box),
-                    tuple(_parsed(f"--{prefix}-exclude", parse_point, p) for p in exclude or ()))
+    prompt = Prompt(tuple(checked(f"--{prefix}-point", parse_point, p) for p in points or ()),
+                    checked(f"--{prefix}-box", parse_box, box),
+                    tuple(checked(f"--{prefix}-exclude", parse_point, p) for p in exclude or ()))
     if not prompt:
         raise InputError(f"--{prefix}-exclude needs a --{prefix}-point or --{prefix}-box on the object too")
     return prompt
@@ -319,8 +310,8 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
     from .source import ExtractOptions
     from .source.extract import HINGE_NOTE
 
-    parts_value = _parsed("--parts", parse_parts, parts)
-    focal = _parsed("--focal", parse_focal, focal)
+    parts_value = checked("--parts", parse_parts, parts)
+    focal = checked("--focal", parse_focal, focal)
     _check_max_side(max_side)
     if max_pixels < 16 * 16 * 2:
         raise InputError(f"--max-pixels must be at least {16 * 16 * 2}, got {max_pixels}")
@@ -505,13 +496,13 @@ def _playback(output: Path, target: Path, frames, speed, loop, reverse, rotation
     if target_mask is not None and not target_mask.is_file():
         raise InputError(f"target mask {target_mask} does not exist")
     pipeline.check_target(target, target_mask, target_depth, target_prompt)
-    background = _parsed("--background", parse_scene_background, background)
+    background = checked("--background", parse_scene_background, background)
     if background == "scene" and target.suffix.lower() == ".ply":
         raise InputError("--background scene needs an image target: a .ply has no scene around it")
     return _Playback(frames, speed, loop, reverse, rotation_scale, translation_scale, fps,
-                     background, _parsed("--size", parse_size, size),
+                     background, checked("--size", parse_size, size),
                      camera, camera_amount, camera_path, ply_dir, target_mask, target_prompt, target_depth, shape,
-                     polish, anchor, motion, _parsed("--part-seed", parse_part_seeds, part_seed or None), refine,
+                     polish, anchor, motion, checked("--part-seed", parse_part_seeds, part_seed or None), refine,
                      preview, splats)
 
 
@@ -685,8 +676,8 @@ def reconstruct(source: Annotated[Path, typer.Argument(help="Video file or folde
     if masks is not None and not masks.is_dir():
         raise InputError(f"mask folder {masks} does not exist")
     options = ReconstructOptions(iterations=iterations, max_side=max_side)
-    extract_options = ExtractOptions(parts=_parsed("--parts", parse_parts, parts))
-    focal = _parsed("--focal", parse_focal, focal)
+    extract_options = ExtractOptions(parts=checked("--parts", parse_parts, parts))
+    focal = checked("--focal", parse_focal, focal)
     with _session("reconstruct", quiet, verbose, json_summary) as session:
         given = None if prior is None else read_prior(prior)
         result, used = pipeline.reconstruct(source, masks=masks, prior=given, focal=focal, start=start, end=end,
@@ -742,8 +733,8 @@ def eval_self_cmd(source: Annotated[Path, typer.Argument(help="Video file or fol
     reconstruct_options = ReconstructOptions() if iterations is None else ReconstructOptions(iterations=iterations)
 
     _check_max_side(max_side)
-    options = replace(EVAL_EXTRACT, parts=_parsed("--parts", parse_parts, parts))
-    focal_value = _parsed("--focal", parse_focal, focal)
+    options = replace(EVAL_EXTRACT, parts=checked("--parts", parse_parts, parts))
+    focal_value = checked("--focal", parse_focal, focal)
     if masks is not None and not masks.is_dir():
         raise InputError(f"mask folder {masks} does not exist")
     prompt = _prompt("source", source_point, source_box, source_exclude)
@@ -868,7 +859,7 @@ def render_cmd(scene: Annotated[Path, typer.Argument(help="3DGS .ply file.")],
     """Render a 3DGS .ply from a camera to a PNG (a warning when nothing of it is in view)."""
     from .render import render
 
-    bg = _parsed("--background", parse_background, background)
+    bg = checked("--background", parse_background, background)
     if output.suffix.lower() not in (".png", ".jpg", ".jpeg"):
         raise InputError(f"unsupported image output {output.name!r}: use .png or .jpg")
     check_output_path(output)

@@ -16,6 +16,7 @@ __all__ = [
     "matrix_to_quaternion",
     "quaternion_multiply",
     "skew",
+    "rodrigues_terms",
     "axis_angle_to_matrix",
     "matrix_to_axis_angle",
     "so3_left_jacobian",
@@ -105,15 +106,22 @@ def skew(v: np.ndarray) -> np.ndarray:
     return k - np.swapaxes(k, -1, -2)
 
 
-def axis_angle_to_matrix(v: np.ndarray) -> np.ndarray:
-    """Axis-angle vectors (..., 3) → rotation matrices (..., 3, 3) (Rodrigues)."""
+def rodrigues_terms(v: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The terms of Rodrigues' formula ``R = I + a K + b K²`` for axis-angle vectors v (..., 3): the angles
+    θ (..., 1, 1), the cross-product matrices K (..., 3, 3), and a = sin θ / θ, b = (1 - cos θ) / θ² (..., 1, 1)
+    (their series near 0)."""
     v = np.asarray(v, dtype=np.float64)
     theta = np.linalg.norm(v, axis=-1)[..., None, None]
-    k = skew(v)
     small = theta < 1e-8
     safe = np.where(small, 1.0, theta)
     a = np.where(small, 1.0 - theta**2 / 6.0, np.sin(safe) / safe)
     b = np.where(small, 0.5 - theta**2 / 24.0, (1.0 - np.cos(safe)) / safe**2)
+    return theta, skew(v), a, b
+
+
+def axis_angle_to_matrix(v: np.ndarray) -> np.ndarray:
+    """Axis-angle vectors (..., 3) → rotation matrices (..., 3, 3) (Rodrigues)."""
+    _, k, a, b = rodrigues_terms(v)
     return np.eye(3) + a * k + b * (k @ k)
 
 

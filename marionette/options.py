@@ -2,21 +2,34 @@
 
 Each parser takes an option's command-line text or its TOML value and
 returns the checked value, or raises ``ValueError`` with a reason ("must be
-…") that the caller prefixes with the option's name.
+…") that the caller prefixes with the option's name (:func:`checked` does).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 from .camera import MAX_IMAGE_SIDE
+from .errors import InputError
 
-__all__ = ["MAX_PARTS", "parse_background", "parse_focal", "parse_scene_background", "parse_size", "parse_parts",
-           "parse_part_seeds", "parse_point", "parse_box"]
+__all__ = ["MAX_PARTS", "checked", "parse_background", "parse_focal", "parse_scene_background", "parse_size",
+           "parse_parts", "parse_part_seeds", "parse_point", "parse_box"]
 
 #: Most rigid parts ``--parts`` may ask for.
 MAX_PARTS = 8
+
+
+def checked(option: str, parse: Callable[[Any], Any], value: Any) -> Any:
+    """``value`` checked by one of the parsers here; None stays None. A bad value raises
+    :class:`~marionette.errors.InputError` ``"{option} {reason}, got {value!r}"``."""
+    if value is None:
+        return None
+    try:
+        return parse(value)
+    except ValueError as e:
+        raise InputError(f"{option} {e}, got {value!r}") from None
 
 
 def _numbers(value: Any, count: int, separator: str) -> list[float]:

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .geometry import matrix_to_axis_angle
+from .geometry import matrix_to_axis_angle, rodrigues_terms
 
 __all__ = ["snap", "snap_pose"]
 
@@ -41,18 +41,9 @@ def snap_pose(pose: np.ndarray, step: float) -> np.ndarray:
     """
     pose = np.asarray(pose, dtype=np.float64)
     v = snap(matrix_to_axis_angle(pose[..., :3, :3]), step)  # (..., 3)
-    theta = np.linalg.norm(v, axis=-1)[..., None, None]
-    small = theta < 1e-8
-    safe = np.where(small, 1.0, theta)
-    a = np.where(small, 1.0 - theta ** 2 / 6.0, np.sin(safe) / safe)
-    b = np.where(small, 0.5 - theta ** 2 / 24.0, (1.0 - np.cos(safe)) / safe ** 2)
-    x, y, z = v[..., 0, None, None], v[..., 1, None, None], v[..., 2, None, None]
-    zero = np.zeros_like(x)
-    cross = np.concatenate([np.concatenate([zero, -z, y], -1), np.concatenate([z, zero, -x], -1),
-                            np.concatenate([-y, x, zero], -1)], -2)  # (..., 3, 3) the skew matrix [v]x
-    outer = v[..., :, None] * v[..., None, :]
-    # [v]x [v]x = v vᵀ - |v|² I
-    rotation = np.eye(3) + a * cross + b * (outer - theta ** 2 * np.eye(3))
+    theta, cross, a, b = rodrigues_terms(v)
+    # K² = v vᵀ - |v|² I, elementwise
+    rotation = np.eye(3) + a * cross + b * (v[..., :, None] * v[..., None, :] - theta ** 2 * np.eye(3))
     out = np.zeros_like(pose)
     out[..., :3, :3] = snap(rotation, _ENTRY_STEP)
     out[..., :3, 3] = snap(pose[..., :3, 3], step)

@@ -27,7 +27,7 @@ from pathlib import Path
 from urllib.parse import parse_qs, urlparse
 
 from ..errors import InputError
-from ..options import parse_background, parse_focal, parse_parts
+from ..options import checked, parse_background, parse_focal, parse_parts
 from ..prior import MOTION_FRAMES
 from ..render.camera_path import CAMERA_MOVES
 from ..segment import Prompt
@@ -79,22 +79,10 @@ def _settings(body: dict) -> Settings:
         raise InputError(f"motion must be one of {', '.join(MOTION_FRAMES)}, got {motion!r}")
     background = body.get("background", "1,1,1")
     if background != "scene":
-        try:
-            background = parse_background(background)
-        except ValueError as e:
-            raise InputError(f"background {e}, got {background!r}") from None
-    try:
-        parts = parse_parts(body.get("parts", 1))
-    except ValueError as e:
-        raise InputError(f"parts {e}, got {body.get('parts')!r}") from None
-    focal = body.get("focal")
-    if focal is not None:
-        try:
-            focal = parse_focal(focal)
-        except ValueError as e:
-            raise InputError(f"focal {e}, got {focal!r}") from None
+        background = checked("background", parse_background, background)
     return Settings(speed, frames, camera, motion, background, _prompt(body.get("source")),
-                    _prompt(body.get("target")), parts, focal)
+                    _prompt(body.get("target")), checked("parts", parse_parts, body.get("parts", 1)),
+                    checked("focal", parse_focal, body.get("focal")))
 
 
 class _Handler(BaseHTTPRequestHandler):
