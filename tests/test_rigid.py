@@ -341,6 +341,32 @@ def test_a_frame_where_few_tracks_survive_is_aligned_from_its_weak_pose():
     assert 10 not in without.failed_frames and 10 not in without.recovered_frames
 
 
+def test_a_frame_the_sequential_pass_lost_is_posed_after_the_refinement(monkeypatch):
+    """PnP fails at frame 12 in the sequential pass (as it does from a guess hundreds of pixels off, after a few
+    poorly posed frames: the backpack clip's end); after the refinement it is tried again and placed, and the
+    tracks born there, lifted with the guessed pose, are lifted again with the found one."""
+    truth = turning_poses(24, 60.0)
+    tracks, _ = ellipsoid_tracks(truth, reseeded=True)
+    assert (tracks.start == 12).sum() > 15
+    shape = ShapePrior.inflate(np.isfinite(ellipsoid_shape().front), K)
+    pnp, calls = rigid._pnp, []
+
+    def lost_once_at_frame_12(points, uv, k, guess, options):
+        calls.append(len(points))
+        if len(calls) == 12:  # one call per frame from frame 1 on: the sequential pass at frame 12
+            return None, np.zeros(len(points), bool), "PnP RANSAC found 0 inliers, need 6"
+        return pnp(points, uv, k, guess, options)
+
+    monkeypatch.setattr(rigid, "_pnp", lost_once_at_frame_12)
+    fit = fit_rigid(tracks, shape)
+    assert len(calls) == 24  # frames 1-23, then frame 12 once more
+    assert fit.failed_frames == {}
+    assert median_rotation_error(fit.poses, truth) < 0.5
+    assert rotation_angle_deg(fit.poses[12, :3, :3] @ truth[12, :3, :3].T) < 0.5
+    born = tracks.start == 12
+    assert fit.inliers[12:, born].sum() > 0.9 * tracks.visible[12:, born].sum()
+
+
 def test_the_refinement_draws_whole_chains_of_strict_tracks():
     # 60 tracks in 20 chains of 3 pieces (frames 0-3, 4-7, 8-11): a draw of 5 takes all 3 pieces of 5 chains,
     # as many observations as 5 long tracks would give.

@@ -42,7 +42,10 @@ the rigidity itself, the classical structure-from-motion route:
    (what the SpaT prior rotates parts about).
 
 Frames where the pose cannot be estimated (fewer than ``min_points`` tracks
-or inliers) are expected outcomes, not errors. Given a ``recover`` function
+or inliers) are expected outcomes, not errors. They are tried once more
+after the refinement, from its corrected points and poses (a few poorly
+posed frames before one can leave it a guess too far off for PnP). Given a
+``recover`` function
 (:mod:`~marionette.source.recover` aligns a model of the body to the frame),
 their pose is found without tracks, as is the pose of a frame where only a
 few tracks survive; those frames are listed in ``RigidFit.recovered_frames``
@@ -733,6 +736,35 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
         # What the next frames start from, rounded as PnP's inputs are (_PNP_STEP).
         poses[:upto + 1], points[lifted] = snap_pose(poses[:upto + 1], _PNP_STEP), snap(points[lifted], _PNP_STEP)
 
+    def retry_failed() -> bool:
+        """PnP once more at the failed frames, in order, from the refined points and poses; True if any
+        frame got a pose. The sequential pass can fail at a frame because the frames before it were posed
+        poorly (few inliers each, and the constant-velocity guess from them hundreds of pixels off: the
+        backpack clip's end); the refinement corrects those, and the tracks that reach the failed frame from
+        them place it. Not the tracks first seen at a failed frame: lifted with its guessed pose, they would
+        only give that guess back; once the frame is placed they are lifted again with its pose."""
+        posed = np.array([t not in failed for t in range(num_frames)])
+        first_seen = tracks.visible.argmax(axis=0)  # (M,)
+        found = False
+        for t in sorted(failed):
+            usable = np.nonzero(tracks.visible[t] & np.isfinite(points[:, 0]) & posed[first_seen])[0]
+            if len(usable) < options.min_points:
+                continue
+            before = [u for u in range(t) if posed[u]]
+            pose, inl, _ = _pnp(points[usable], uv[t, usable], k, _extrapolate(poses, before, t), options)
+            if pose is None:
+                continue
+            guessed = tracks.visible[t] & ~posed[first_seen]  # (M,) lifted at failed frames, this one too
+            points[guessed], birth[guessed], directions[guessed] = np.nan, np.nan, np.nan
+            poses[t], posed[t], found = pose, True, True
+            inliers[t, usable[inl]] = True
+            if inl.sum() >= options.weak_fraction * np.median(counts):
+                strong.append(t)  # a source for aligning the frames still failed
+            del failed[t]
+            lift(t, pose)
+        strong.sort()
+        return found
+
     lift(0, poses[0])
     inliers[0] = tracks.visible[0] & np.isfinite(points[:, 0])
     anchors = np.nonzero(inliers[0])[0]  # tracks lifted on the shape prior's frame-0 surface
@@ -786,6 +818,8 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
     t_pose, recover_forward = time.perf_counter(), t_recover
     if options.refine:
         refine(num_frames - 1, final=True)
+        if failed and retry_failed():
+            refine(num_frames - 1, final=True)
     if recover is not None:
         # Backward: each frame still failed from the next strong one, guessed from the two known after it.
         for t in sorted(failed, reverse=True):
