@@ -695,6 +695,8 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
 
     def refine(upto: int, final: bool) -> None:
         """Bundle-adjust frames 0..upto, then fit the other lifted points to the new poses."""
+        nonlocal refined_upto
+        refined_upto = upto
         known = np.arange(num_frames) <= upto
         known[list(failed)] = False
         # A recovered pose is held: few tracks see its frame, but those born there tie the frames after a
@@ -772,7 +774,21 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
     good = [0]  # frames with a pose: tracked or recovered
     strong = [0]  # frames tracked with a usual number of PnP inliers
     counts = [int(inliers[0].sum())]  # PnP inlier counts of the tracked frames
-    t_refine = 0.0
+    t_refine, refined_upto = 0.0, 0
+
+    def settle(upto: int) -> bool:
+        """Refine frames 0..upto before a recovery starts from frame ``upto``, unless that is done; True if
+        it ran. A recovered pose is the source frame's times the alignment's step, and held from then on: the
+        source's error stays in it (between refinements PnP poses rest on points not yet corrected, and strict
+        tracks' fresh pieces on their chains' first lifts: 9° off at a blurred frame's source, 2° after this)."""
+        nonlocal t_refine
+        if not options.refine or refined_upto >= upto:
+            return False
+        t0 = time.perf_counter()
+        refine(upto, final=False)
+        t_refine += time.perf_counter() - t0
+        return True
+
     for t in range(1, num_frames):
         usable = np.nonzero(tracks.visible[t] & np.isfinite(points[:, 0]))[0]
         guess = pose = _extrapolate(poses, good, t)
@@ -792,12 +808,15 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
                     strong.append(t)
                 elif recover is not None:
                     # A few surviving tracks (a blurred frame) give a poor pose: align the model from it.
+                    settle(strong[-1])
                     aligned, note = recover_pose(t, strong[-1], pose, replace=True)
                     if aligned is not None:
                         pose, recovered[t] = aligned, f"PnP kept only {count} inliers; {note}"
         if t in failed and recover is not None:
             # From the last strong frame, not the last with a pose: a frame the tracks lost or kept few of is
             # often blurred, a poor model that the next blurred frame agrees with all the same.
+            if settle(strong[-1]):
+                guess = _extrapolate(poses, good, t)
             aligned, note = recover_pose(t, strong[-1], guess)
             if aligned is None:
                 failed[t] += f"; {note}"
