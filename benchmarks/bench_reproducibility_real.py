@@ -88,13 +88,16 @@ a 1e-6 change: car-turn 0.0005°, car-turn `--focal auto` 0.82° (final angle 45
 bit (the code before fails it); `tests/test_determinism.py` now runs its second configuration under the
 Sandybridge kernel.
 
-Third change (session of 2026-12-05, evening): the frames PnP lost in the sequential pass are tried once more after
-the final refinement, from its corrected points and poses (`fit_rigid`). The backpack's last three frames had
-failed there because the four frames before them were posed poorly (10-52 inliers of 68-174 tracks, steps of 19-31°
-a frame), so the guess PnP started from was 750-840 px off; after the refinement the 38 tracks that reach frame 84
-from before place it, and the next two follow. The backpack now has no failed frame (the one recovered by alignment,
-frame 18, as before) and turns 77.6° by its end instead of being held at 56.4° from frame 83; the same in every
-configuration. The other clips had no failed frame and are unchanged."""
+Third change (session of 2026-12-05, evening): two changes to `fit_rigid` for the frames the tracks lose. The
+frames PnP lost in the sequential pass are tried once more after the final refinement, from its corrected points
+and poses: the backpack's last three frames had failed there because the four frames before them were posed poorly
+(10-52 inliers of 68-174 tracks, steps of 19-31° a frame), so the guess PnP started from was 750-840 px off. And
+the frame a recovery by alignment starts from is refined first, since a recovered pose is that frame's pose times
+the alignment's step (on the backpack that is frame 17, before frame 18's weak PnP pose is replaced, and the turn
+after it moved with it). The backpack now has no failed frame (frame 18 recovered, as before) and turns 40.0° by its
+end (56.4° before, held from frame 83 on; 77.6° with the first change alone); the bag swings through more than a
+half-turn and back (its side, back and front face the camera in turn), which no rigid fit of these tracks follows
+either way. The same in every configuration; the other clips had no failed or recovered frame and are unchanged."""
 
 
 def run_one(case: str, out: Path) -> None:
