@@ -746,17 +746,16 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
         them place it. Not the tracks first seen at a failed frame: lifted with its guessed pose, they would
         only give that guess back; once the frame is placed they are lifted again with its pose."""
         posed = np.array([t not in failed for t in range(num_frames)])
-        first_seen = tracks.visible.argmax(axis=0)  # (M,)
         found = False
         for t in sorted(failed):
-            usable = np.nonzero(tracks.visible[t] & np.isfinite(points[:, 0]) & posed[first_seen])[0]
+            usable = np.nonzero(tracks.visible[t] & np.isfinite(points[:, 0]) & posed[tracks.start])[0]
             if len(usable) < options.min_points:
                 continue
             before = [u for u in range(t) if posed[u]]
             pose, inl, _ = _pnp(points[usable], uv[t, usable], k, _extrapolate(poses, before, t), options)
             if pose is None:
                 continue
-            guessed = tracks.visible[t] & ~posed[first_seen]  # (M,) lifted at failed frames, this one too
+            guessed = tracks.visible[t] & ~posed[tracks.start]  # (M,) lifted at failed frames, this one too
             points[guessed], birth[guessed], directions[guessed] = np.nan, np.nan, np.nan
             poses[t], posed[t], found = pose, True, True
             inliers[t, usable[inl]] = True
@@ -777,10 +776,11 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
     t_refine, refined_upto = 0.0, 0
 
     def settle(upto: int) -> bool:
-        """Refine frames 0..upto before a recovery starts from frame ``upto``, unless that is done; True if
-        it ran. A recovered pose is the source frame's times the alignment's step, and held from then on: the
-        source's error stays in it (between refinements PnP poses rest on points not yet corrected, and strict
-        tracks' fresh pieces on their chains' first lifts: 9.3° off at a blurred stretch's source, 0.15° after)."""
+        """Refine frames 0..upto during the sequential pass, unless that is done; True if it ran. Every
+        ``refine_every`` frames, and before a recovery starts from frame ``upto``: a recovered pose is the source
+        frame's times the alignment's step, and held from then on, so the source's error stays in it (between
+        refinements PnP poses rest on points not yet corrected, and strict tracks' fresh pieces on their chains'
+        first lifts: 9.3° off at a blurred stretch's source, 0.15° after)."""
         nonlocal t_refine
         if not options.refine or refined_upto >= upto:
             return False
@@ -829,9 +829,7 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
         lift(t, poses[t])
         if options.refine and options.refine_every and t % options.refine_every == 0 and t < num_frames - 1:
             # Incremental: the guessed shape is corrected before errors in it steer the next poses.
-            t0 = time.perf_counter()
-            refine(t, final=False)
-            t_refine += time.perf_counter() - t0
+            settle(t)
         if progress is not None:
             progress(t, num_frames)
     t_pose, recover_forward = time.perf_counter(), t_recover
