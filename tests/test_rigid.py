@@ -413,3 +413,54 @@ def test_pieces_are_scored_by_their_chain():
     assert own[observed].max() < 1e-9
     assert chained[:, :2][observed[:, :2]].max() > 1.0
     np.testing.assert_array_equal(chained[:, 2], own[:, 2])
+
+
+def lagging_pieces(truth: np.ndarray, lag: float, count: int = 1500, length: int = 3) -> Tracks:
+    """Tracks of ``count`` ellipsoid points, each cut into strict pieces of ``length`` frames; every piece after
+    the first lags its point by ``lag`` of the motion since it began (its window matches poorly where it sits)."""
+    whole, _ = ellipsoid_tracks(truth, count=count, seed=5)
+    uv, visible, start, continues = [], [], [], []
+    for m in range(whole.num_tracks):
+        frames = np.nonzero(whole.visible[:, m])[0]
+        before = -1
+        for s in range(frames[0], frames[-1] + 1, length):
+            piece = np.zeros(len(truth), bool)
+            piece[s:min(s + length, frames[-1] + 1)] = True
+            true = whole.uv[piece, m].astype(np.float64)
+            uv.append(np.full((len(truth), 2), np.nan))
+            uv[-1][piece] = true - (lag if before >= 0 else 0.0) * (true - true[0])
+            visible.append(piece), start.append(s), continues.append(before)
+            before = len(uv) - 1
+    return Tracks(np.stack(uv, axis=1).astype(np.float32), np.stack(visible, axis=1), np.array(start), True, None,
+                  np.array(continues))
+
+
+def joined(first: Tracks, second: Tracks) -> Tracks:
+    """Both sets of tracks as one, ``second``'s continuations renumbered after ``first``'s tracks."""
+    shift = np.where(second.continues >= 0, second.continues + first.num_tracks, -1)
+    return Tracks(np.concatenate([first.uv, second.uv], axis=1), np.concatenate([first.visible, second.visible], 1),
+                  np.concatenate([first.start, second.start]), True, None,
+                  np.concatenate([first.continues, shift]))
+
+
+def test_brief_pieces_that_lag_are_left_out_of_clean_tracks():
+    # 300 exact tracks (seeded as surface turns into view) among 1,500 chains of 3-frame pieces, each piece after
+    # the first lagging by a tenth of its motion: the refinement leaves the lagging pieces out.
+    truth = turning_poses(24, 60.0)
+    exact, _ = ellipsoid_tracks(truth, count=300, reseeded=True)
+    tracks = joined(exact, lagging_pieces(truth, 0.1))
+    shape = ShapePrior.inflate(np.isfinite(ellipsoid_shape().front), K)
+    errors = {n: median_rotation_error(fit_rigid(tracks, shape, options=RigidOptions(
+        min_piece_frames=n, refine_tracks=5000)).poses, truth) for n in (0, 12)}
+    assert errors[12] < 0.005
+    assert errors[0] > 0.015  # kept, they pull the poses
+
+
+def test_noisy_tracks_keep_their_brief_pieces():
+    # With 1 px of noise the pieces' number counts more than their lag: the same poses as with all pieces kept.
+    truth = turning_poses(24, 60.0)
+    exact, _ = ellipsoid_tracks(truth, count=300, reseeded=True)
+    tracks = add_noise(joined(exact, lagging_pieces(truth, 0.1)), 1.0)
+    shape = ShapePrior.inflate(np.isfinite(ellipsoid_shape().front), K)
+    poses = [fit_rigid(tracks, shape, options=RigidOptions(min_piece_frames=n)).poses for n in (0, 12)]
+    np.testing.assert_array_equal(poses[0], poses[1])
