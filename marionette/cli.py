@@ -309,6 +309,7 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
     from .plot import plot_prior
     from .source import ExtractOptions
     from .source.extract import HINGE_NOTE
+    from .source.rigid import RETRIED_NOTE
 
     parts_value = checked("--parts", parse_parts, parts)
     focal = checked("--focal", parse_focal, focal)
@@ -339,10 +340,13 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
     recovered = prior.metadata.get("recovered_frames") or {}
     if recovered:
         hinged = sum(note.startswith(HINGE_NOTE) for note in recovered.values())
+        retried = sum(note.startswith(RETRIED_NOTE) for note in recovered.values())
         seconds = prior.metadata.get("timings", {}).get("recover", 0.0)
-        ways = [f"by alignment ({seconds:.2f} s)"] if hinged < len(recovered) else []
+        ways = [f"by alignment ({seconds:.2f} s)"] if hinged + retried < len(recovered) else []
         if hinged:
             ways.append("about a hinge")
+        if retried:
+            ways.append("by PnP after the refinement")
         how = " or ".join(ways)
         session.reporter.detail(f"  {len(recovered)} part-frames the tracks lost were recovered {how}: "
                                 f"{', '.join(recovered)}")

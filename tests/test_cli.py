@@ -223,6 +223,30 @@ def test_extract_and_run_on_a_synthetic_video(tmp_path, target_png, capsys):
     assert read_video(tmp_path / "r.mp4").frames.shape[0] == 10
 
 
+def test_a_frame_posed_after_the_refinement_is_listed_and_said(tmp_path, capsys, monkeypatch):
+    # PnP fails once at frame 6 in the sequential pass; tried again after the refinement, it is placed: listed
+    # among the recovered frames with its own note, and --verbose says how.
+    from marionette.source import rigid
+    from marionette.synthetic import make_scene
+
+    frames, masks = write_clip(tmp_path, make_scene("inplane", num_frames=12, size=(160, 120), seed=1))
+    pnp, calls = rigid._pnp, []
+
+    def lost_once_at_frame_6(points, uv, k, guess, options):
+        calls.append(len(points))
+        if len(calls) == 6:
+            return None, np.zeros(len(points), bool), "PnP RANSAC found 0 inliers, need 6"
+        return pnp(points, uv, k, guess, options)
+
+    monkeypatch.setattr(rigid, "_pnp", lost_once_at_frame_6)
+    assert main(["extract", str(frames), "--masks", str(masks), "-o", str(tmp_path / "p.npz"), "--verbose",
+                 "--parts", "1", "--no-recover-frames"]) == 0
+    meta = read_prior(tmp_path / "p.npz").metadata
+    assert meta["failed_frames"] == {} and list(meta["recovered_frames"]) == ["0:6"]
+    assert meta["recovered_frames"]["0:6"].startswith(rigid.RETRIED_NOTE)
+    assert "1 part-frames the tracks lost were recovered by PnP after the refinement: 0:6" in capsys.readouterr().err
+
+
 def test_demo_writes_its_videos(tmp_path):
     out = tmp_path / "demo"
     assert main(["demo", "-o", str(out), "--quiet"]) == 0

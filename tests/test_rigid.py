@@ -375,6 +375,9 @@ def test_a_frame_the_sequential_pass_lost_is_posed_after_the_refinement(monkeypa
     fit = fit_rigid(tracks, shape)
     assert len(calls) == 24  # frames 1-23, then frame 12 once more
     assert fit.failed_frames == {}
+    assert list(fit.retried_frames) == [12] and fit.recovered_frames == {}
+    assert fit.retried_frames[12].startswith(rigid.RETRIED_NOTE)
+    assert fit.retried_frames[12].endswith("(first: PnP RANSAC found 0 inliers, need 6)")
     assert median_rotation_error(fit.poses, truth) < 0.05
     assert rotation_angle_deg(fit.poses[12, :3, :3] @ truth[12, :3, :3].T) < 0.05
     born = tracks.start == 12

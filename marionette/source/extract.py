@@ -142,7 +142,7 @@ class _Part:
     centre: np.ndarray  # (3,) at frame 0
     radius: float
     failed: dict[int, str]  # frames whose pose was interpolated, with the reason
-    recovered: dict[int, str]  # frames the tracks lost whose pose was found by alignment, with its note
+    recovered: dict[int, str]  # frames the tracks lost whose pose was found again (alignment, hinge, PnP retried)
 
 
 def _strictness(options: ExtractOptions) -> bool | str:
@@ -440,7 +440,7 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
                 fit = fit_rigid(tracks.subset(members), shape, options=options.rigid, progress=step,
                                 recover=recover)
                 poses, failed, points = fit.poses, fit.failed_frames, fit.points[fit.triangulated]
-                recovered = fit.recovered_frames
+                recovered = dict(sorted({**fit.recovered_frames, **fit.retried_frames}.items()))
                 recover_seconds += fit.timings["recover"]
                 rms.append(fit.reprojection_rms)
             trusted = np.array([t for t in range(num_frames) if t not in failed])

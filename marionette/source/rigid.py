@@ -35,7 +35,9 @@ the rigidity itself, the classical structure-from-motion route:
    runs every ``refine_every`` frames on the frames so far (so that the next
    PnP uses corrected points) and over the whole clip at the end, where
    tracks are then cut where they start to disagree with the fit (drift) and
-   it runs once more.
+   it runs once more. With clean strict tracks (median residual under a
+   quarter pixel), that second pass leaves out the brief pieces restarted at
+   a cut (``RigidOptions.min_piece_frames``), whose lag adds up to a tilt.
 4. **Centre.** :func:`carved_centroid` carves the prior volume, widened to
    the depth range of the points the fit triangulated, with the silhouettes
    of all frames under the fitted poses; its centroid is the body's centre
@@ -44,7 +46,8 @@ the rigidity itself, the classical structure-from-motion route:
 Frames where the pose cannot be estimated (fewer than ``min_points`` tracks
 or inliers) are expected outcomes, not errors. They are tried once more
 after the refinement, from its corrected points and poses (a few poorly
-posed frames before one can leave it a guess too far off for PnP). Given a
+posed frames before one can leave it a guess too far off for PnP); those it
+places are listed in ``RigidFit.retried_frames``. Given a
 ``recover`` function
 (:mod:`~marionette.source.recover` aligns a model of the body to the frame),
 their pose is found without tracks, as is the pose of a frame where only a
@@ -74,7 +77,7 @@ from ..reproducible import snap, snap_pose
 from .bundle import bundle_adjust
 from .tracks import Tracks
 
-__all__ = ["ShapePrior", "RigidOptions", "RigidFit", "fit_rigid", "carved_centroid"]
+__all__ = ["ShapePrior", "RigidOptions", "RigidFit", "fit_rigid", "carved_centroid", "RETRIED_NOTE"]
 
 # Ray-casting: samples along each ray through the volume's depth range, then
 # bisection steps on the first entry (each halves a step of ~3 % of the radius).
@@ -388,6 +391,10 @@ class RigidFit:
     recovered_frames : dict[int, str]
         Frames the tracks lost, or kept too few of for a sound pose, whose
         pose ``recover`` found instead, with why and how.
+    retried_frames : dict[int, str]
+        Frames PnP lost in the sequential pass that it placed when tried again
+        after the refinement, with why it lost them (their poses are then
+        refined like any other's).
     reprojection_rms : float
         RMS reprojection error of the inliers, pixels.
     timings : dict[str, float]
@@ -400,6 +407,7 @@ class RigidFit:
     triangulated: np.ndarray
     failed_frames: dict[int, str] = field(default_factory=dict)
     recovered_frames: dict[int, str] = field(default_factory=dict)
+    retried_frames: dict[int, str] = field(default_factory=dict)
     reprojection_rms: float = float("nan")
     timings: dict[str, float] = field(default_factory=dict)
 
@@ -623,6 +631,9 @@ def _reprojection_errors(k: np.ndarray, poses: np.ndarray, points: np.ndarray, u
 Recover = Callable[[int, int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, bool], tuple["np.ndarray | None", str]]
 
 
+#: How the note of a frame in ``RigidFit.retried_frames`` (and the metadata's ``recovered_frames``) begins.
+RETRIED_NOTE = "posed by PnP after the refinement"
+
 #: Median reprojection error (pixels) of the first refinement below which brief pieces of strict tracks are left
 #: out of the second (see ``RigidOptions.min_piece_frames``): clean footage gives 0.01-0.1 px, noisy tracks ~1 px.
 _PRECISE_PX = 0.25
@@ -664,6 +675,7 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
     inliers = np.zeros((num_frames, num_tracks), bool)
     failed: dict[int, str] = {}
     recovered: dict[int, str] = {}
+    retried: dict[int, str] = {}
     t_start = time.perf_counter()
     chains = tracks.chains()  # (M,)
     # (M,) pieces of strict tracks that start at a cut and end within min_piece_frames
@@ -788,7 +800,7 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
             inliers[t, usable[inl]] = True
             if inl.sum() >= options.weak_fraction * np.median(counts):
                 strong.append(t)  # a source for aligning the frames still failed
-            del failed[t]
+            retried[t] = f"{RETRIED_NOTE} from {int(inl.sum())} PnP inliers (first: {failed.pop(t)})"
             lift(t, pose)
         strong.sort()
         return found
@@ -892,4 +904,4 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
                "recover": t_recover}
     return RigidFit(poses=poses, points=points, inliers=inliers, triangulated=_triangulated(poses, points, inliers),
                     failed_frames=dict(sorted(failed.items())), recovered_frames=dict(sorted(recovered.items())),
-                    reprojection_rms=rms, timings=timings)
+                    retried_frames=retried, reprojection_rms=rms, timings=timings)
