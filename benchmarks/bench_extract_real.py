@@ -131,7 +131,8 @@ def main() -> None:
              "fresh process; speed cases give the median of the runs. Angles in degrees: `final` is the rotation "
              "from frame 0 to the last frame, `yaw range` the spread of the rotation vector's vertical component "
              "(camera y axis), `yaw turns` how often it changes direction; failed part-frames are interpolated, "
-             "recovered ones were lost by the tracks and found by alignment (`marionette.source.recover`); `tracks`: "
+             "recovered ones were lost by the tracks and found again (by alignment, `marionette.source.recover`; "
+             "about a hinge; or by PnP once the frames before them were refined); `tracks`: "
              "strict or anchored (`--strict-tracks`), with the share of windows that matched their anchor closely "
              "where strict ones were tried (one-part cases; parts are found on anchored tracks).", "",
              "| case | frames | parts | final angle | yaw range | yaw turns | failed / recovered part-frames "

@@ -97,7 +97,9 @@ the alignment's step (on the backpack that is frame 17, before frame 18's weak P
 after it moved with it). The backpack now has no failed frame (frame 18 recovered, as before) and turns 40.0° by its
 end (56.4° before, held from frame 83 on; 77.6° with the first change alone); the bag swings through more than a
 half-turn and back (its side, back and front face the camera in turn), which no rigid fit of these tracks follows
-either way. The same in every configuration; the other clips had no failed or recovered frame and are unchanged."""
+either way. The same in every configuration; the other clips had no failed or recovered frame and are unchanged.
+The frames PnP placed on that second try are listed among the recovered frames since (same session, with a
+note of their own): the backpack's frames 85 and 86, hence 0 / 3 in the table (frame 18 by alignment)."""
 
 
 def run_one(case: str, out: Path) -> None:
