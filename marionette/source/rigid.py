@@ -47,15 +47,15 @@ Frames where the pose cannot be estimated (fewer than ``min_points`` tracks
 or inliers) are expected outcomes, not errors. They are tried once more
 after the refinement, from its corrected points and poses (a few poorly
 posed frames before one can leave it a guess too far off for PnP); those it
-places are listed in ``RigidFit.retried_frames``. Given a
-``recover`` function
-(:mod:`~marionette.source.recover` aligns a model of the body to the frame),
-their pose is found without tracks, as is the pose of a frame where only a
-few tracks survive; those frames are listed in ``RigidFit.recovered_frames``
-and held in the refinement. The others are interpolated between the nearest
-good frames (held after the last one) and reported with a reason in
-``RigidFit.failed_frames``. Tracks born at such a frame are lifted with the
-pose found or predicted there, so that the frames after it can go on.
+places are listed in ``RigidFit.retried_frames``. Given a ``recover``
+function (:mod:`~marionette.source.recover` aligns a model of the body to
+the frame), their pose is found without tracks, as is the pose of a frame
+where only a few tracks survive; those frames are listed in
+``RigidFit.recovered_frames`` and held in the refinement. The others are
+interpolated between the nearest good frames (held after the last one) and
+reported with a reason in ``RigidFit.failed_frames``. Tracks born at such a
+frame are lifted with the pose found or predicted there, so that the frames
+after it can go on.
 
 Poses map points of the body at frame 0, expressed in the camera frame of
 frame 0, to the camera frame of frame t (``X_t = R X_0 + t``); with a static
@@ -761,8 +761,9 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
             if spread < _PRECISE_PX:
                 # Tracks this close: a brief piece's lag (its window fails to match where it sits) outweighs what
                 # its few observations add, at the frames enough other tracks see.
-                covered = (observed & ~brief[chosen]).sum(axis=1) >= _COVERED_FRAME
-                observed &= ~(brief[chosen][None] & covered[:, None])
+                short = brief[chosen]  # (N,)
+                covered = (observed & ~short).sum(axis=1) >= _COVERED_FRAME  # (T,)
+                observed &= ~(short[None] & covered[:, None])
             poses[:], points[chosen] = _bundle_adjust(observed, uv[:, chosen], k, poses, points[chosen],
                                                       directions[chosen], free, shape.radius, options,
                                                       iterations, held, share)
