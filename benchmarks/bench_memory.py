@@ -31,7 +31,23 @@ BUDGET_MB = 2048
 OUT = Path(__file__).resolve().parents[1] / "docs" / "benchmarks" / "memory.md"
 
 
-NOTES = """## Where the memory goes
+NOTES = """## Before
+
+- 2026-11-30 (commit 29d1055, frames decoded whole): with masks at least 2622 MB, stopped after 44 min in the
+  pose stage; without masks more than 3.3 GB (the frames and the foreground's flows alone).
+- 2026-11-30, streamed (the page of that day): 1109 MB with masks (2313 s under a load of 4-15); the
+  foreground stage alone 1251 MB without masks.
+- 2026-12-05 (commit 1a3cefc): with masks, 2236 MB and still in the pose stage after 46 min (stopped): over
+  the budget. Strict tracks (since 2026-12-05 the default where windows keep matching, as on this clip) are
+  pieces, 28,547 of them here over 1000 frames, and the pose fit held whole-clip arrays of them: a float64
+  copy of the tracks (T x M x 2, 457 MB) and, at its end, the reprojection errors of every track in every
+  frame computed at once (T x M x 3 float64 camera points, 685 MB, and temporaries as large). Its bundle
+  adjustment also built each matrix entry's row and column (288 bytes per observation) and solved a system
+  the long tracks fill to 80 % or more by SuperLU (`bundle.md`). Now the tracks stay float32, the errors are
+  computed a million point-frames at a time, and the bundle adjustment builds block-sparse matrices and solves
+  a mostly filled system dense.
+
+## Where the memory goes
 
 Before streaming (commit 29d1055), `marionette extract` decoded the whole
 video into one array and every stage worked on whole-video arrays. For this

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy.optimize import least_squares
+from scipy.sparse.linalg import spsolve
 
 from marionette.geometry import axis_angle_to_matrix, make_transform, matrix_to_axis_angle, rotation_angle_deg
 from marionette.source import bundle
@@ -82,10 +83,17 @@ def twin(observed, uv, start, lifted, directions, free, held=()):
     return unpack(ref.x), ref.cost
 
 
-@pytest.mark.parametrize("seed, dense_frames", [(0, 250), (1, 250), (0, 0)])
-def test_reaches_the_optimum_of_the_dense_twin(seed, dense_frames, monkeypatch):
-    """Both ways of solving the reduced system: dense (short clips) and sparse (``dense_frames`` 0: long ones)."""
-    monkeypatch.setattr(bundle, "_DENSE_FRAMES", dense_frames)
+@pytest.mark.parametrize("seed, layout", [(0, "dense"), (1, "dense"), (0, "dense by cost"), (0, "sparse"),
+                                          (0, "sparse, solved dense")])
+def test_reaches_the_optimum_of_the_dense_twin(seed, layout, monkeypatch):
+    """Every way of forming and solving the reduced system: dense (short clips, or long ones where a BLAS product
+    is cheaper), block-sparse and solved by SuperLU, or block-sparse and solved dense (long tracks fill it)."""
+    if layout != "dense":
+        monkeypatch.setattr(bundle, "_DENSE_FRAMES", 0)
+        monkeypatch.setattr(bundle, "_BLAS_SPEEDUP", 1e12 if layout == "dense by cost" else 1e-12)
+        monkeypatch.setattr(bundle, "_DENSE_SOLVE", 0.0 if layout == "sparse, solved dense" else 1.1)
+    sparse_solves = []
+    monkeypatch.setattr(bundle, "spsolve", lambda *a, **kw: sparse_solves.append(1) or spsolve(*a, **kw))
     observed, uv, start, lifted, directions = problem(seed)
     free = np.arange(1, len(start))
     poses, points = bundle_adjust(observed, uv, K, start, lifted, directions, free, PRIOR, SCALE, 200, ftol=1e-14)
@@ -99,6 +107,7 @@ def test_reaches_the_optimum_of_the_dense_twin(seed, dense_frames, monkeypatch):
     assert np.abs(points - ref_points).max() < 1e-4
     # and the start was far from it: the solver did real work
     assert total_cost(observed, uv, start, lifted, lifted, directions, known) > 2 * cost
+    assert bool(sparse_solves) == (layout == "sparse")
 
 
 def test_held_and_unlisted_frames_keep_their_poses_and_their_observations_count():

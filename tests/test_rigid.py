@@ -418,6 +418,26 @@ def test_pieces_are_scored_by_their_chain():
     np.testing.assert_array_equal(chained[:, 2], own[:, 2])
 
 
+def test_reprojection_errors_in_chunks_are_the_whole_computation(monkeypatch):
+    """A few frames at a time (long clips' camera points would take gigabytes), with the same bits as at once; a
+    point behind the camera, an unknown point and an unseen observation are infinite."""
+    rng = np.random.default_rng(3)
+    k = np.array([[300.0, 0, 160], [0, 300.0, 120], [0, 0, 1]])
+    poses = make_transform(axis_angle_to_matrix(rng.normal(0, 0.2, (7, 3))), rng.normal([0, 0, 6], 0.3, (7, 3)))
+    points = rng.normal(0, 1, (5, 3))
+    points[3] = np.nan
+    points[4] = [0.0, 0.0, -40.0]  # behind every camera
+    uv = rng.uniform(0, 300, (7, 5, 2)).astype(np.float32)
+    uv[2, 1] = np.nan
+    whole = _reprojection_errors(k, poses, points, uv)
+    monkeypatch.setattr(rigid, "_ERROR_CHUNK", 10)  # two frames of five points per chunk, the last one shorter
+    np.testing.assert_array_equal(_reprojection_errors(k, poses, points, uv), whole)
+    assert np.isinf(whole[:, 3:]).all() and np.isinf(whole[2, 1]) and np.isfinite(whole[:, :3]).sum() == 20
+    cam = np.einsum("tij,nj->tni", poses[:, :3, :3], points[:3]) + poses[:, None, :3, 3]
+    expected = np.linalg.norm(cam[..., :2] / cam[..., 2:] * [300.0, 300.0] + [160.0, 120.0] - uv[:, :3], axis=2)
+    np.testing.assert_allclose(whole[:, :3][np.isfinite(whole[:, :3])], expected[np.isfinite(expected)], rtol=1e-12)
+
+
 def lagging_pieces(truth: np.ndarray, lag: float, count: int = 1500, length: int = 3) -> Tracks:
     """Tracks of ``count`` ellipsoid points, each cut into strict pieces of ``length`` frames; every piece after
     the first lags its point by ``lag`` of the motion since it began (its window matches poorly where it sits)."""

@@ -14,7 +14,7 @@ least squares (weights ``ρ′`` per residual, curvature term dropped).
 from __future__ import annotations
 
 import numpy as np
-from scipy import sparse
+from scipy import linalg, sparse
 from scipy.sparse.linalg import spsolve
 from threadpoolctl import threadpool_limits
 
@@ -22,10 +22,20 @@ from ..geometry import axis_angle_to_matrix, make_transform, skew
 
 __all__ = ["bundle_adjust", "huber_cost"]
 
-# Up to this many free frames the reduced system is solved dense (one BLAS product and a Cholesky-sized
-# solve, 0.1 s per call at 50 frames); beyond, as a sparse matrix (SuperLU), whose cost grows with the
-# frames times the tracks' length rather than with the frames cubed (800 frames: 3.6 s per call, not 17 s).
+# Up to this many free frames the reduced system is formed and solved dense (one BLAS product and a
+# Cholesky-sized solve, 0.1 s per call at 50 frames).
 _DENSE_FRAMES = 250
+# Beyond, it is formed dense only where that is cheaper and small: a BLAS product does the work of
+# 6F × 3N × 6F multiply-adds about this many times faster than the block-sparse product does its 6 × 3 × 6
+# per pair of observations of a point (1000 frames, 600 tracks of 600 frames each: 1.2 s for the dense
+# product, 20 s for the block-sparse one with a third of its work, on a loaded machine), and both layouts of
+# W take at most _DENSE_BYTES. Otherwise it is formed block-sparse, its cost growing with the frames times the
+# tracks' length rather than with the frames cubed, and solved as a sparse matrix (SuperLU) unless more than
+# _DENSE_SOLVE of it is filled (long tracks couple every frame with every other: 1000 frames, 84 % filled,
+# 17 s by SuperLU, 3 s dense).
+_BLAS_SPEEDUP = 30.0
+_DENSE_BYTES = 256 * 2 ** 20
+_DENSE_SOLVE = 0.25
 
 
 def huber_cost(residuals: np.ndarray, scale: float) -> float:
@@ -79,12 +89,14 @@ def bundle_adjust(observed: np.ndarray, uv: np.ndarray, k: np.ndarray, poses: np
     obs_slot = slot[obs_t[moving]]
     fxy, cxy = np.array([k[0, 0], k[1, 1]]), np.array([k[0, 2], k[1, 2]])
     start = np.asarray(points, np.float64)
-    # Row and column of every entry of W's blocks (6F × 3N, one 6 × 3 block per moving observation) and of
-    # U's (6F × 6F, one 6 × 6 block per free frame).
-    w_index = (np.broadcast_to(6 * obs_slot[:, None, None] + np.arange(6)[:, None], (len(moving), 6, 3)).ravel(),
-               np.broadcast_to(3 * obs_i[moving][:, None, None] + np.arange(3), (len(moving), 6, 3)).ravel())
-    u_index = (np.broadcast_to(6 * np.arange(f_count)[:, None, None] + np.arange(6)[:, None], (f_count, 6, 6)).ravel(),
-               np.broadcast_to(6 * np.arange(f_count)[:, None, None] + np.arange(6), (f_count, 6, 6)).ravel())
+    # W and W V⁻¹ of long clips as block-sparse rows (one 6 × 3 block per moving observation), in frame order,
+    # unless the dense layout is cheaper (see _BLAS_SPEEDUP).
+    by_frame = np.lexsort((obs_i[moving], obs_slot))
+    block_columns = obs_i[moving][by_frame]
+    block_rows = np.searchsorted(obs_slot[by_frame], np.arange(f_count + 1))
+    pairs = float(np.sum(np.bincount(obs_i[moving], minlength=n_count).astype(np.float64) ** 2))
+    dense = f_count <= _DENSE_FRAMES or (f_count ** 2 * n_count / _BLAS_SPEEDUP < pairs
+                                         and 2 * 18 * 8 * f_count * n_count <= _DENSE_BYTES)
 
     def evaluate(rot: np.ndarray, trans: np.ndarray, pts: np.ndarray):
         rx = np.einsum("oij,oj->oi", rot[obs_t], pts[obs_i])  # (O, 3)
@@ -121,7 +133,7 @@ def bundle_adjust(observed: np.ndarray, uv: np.ndarray, k: np.ndarray, poses: np
         v_inv = np.linalg.inv(v_d)
         y = w @ v_inv[obs_i[moving]]  # (M, 6, 3): W V⁻¹ per observation
         u_d = u + (damping * np.einsum("fii->fi", u) + 1e-12)[..., None] * np.eye(6)
-        if f_count <= _DENSE_FRAMES:  # dense 6F × 3N layouts of W and W V⁻¹: S is one matrix product
+        if dense:  # dense 6F × 3N layouts of W and W V⁻¹: S is one matrix product
             w_mat, y_mat = np.zeros((2, f_count, 6, n_count, 3))
             w_mat[obs_slot, :, obs_i[moving], :] = w
             y_mat[obs_slot, :, obs_i[moving], :] = y
@@ -132,10 +144,23 @@ def bundle_adjust(observed: np.ndarray, uv: np.ndarray, k: np.ndarray, poses: np
             d_p = np.linalg.solve(reduced, -g_p.ravel() + y_mat @ g_x.ravel())
             back = d_p @ w_mat
         else:  # two frames couple only through points seen in both: S is banded, as wide as the tracks are long
-            w_mat = sparse.csr_matrix((w.ravel(), w_index), shape=(6 * f_count, 3 * n_count))
-            y_mat = sparse.csr_matrix((y.ravel(), w_index), shape=(6 * f_count, 3 * n_count))
-            reduced = sparse.csr_matrix((u_d.ravel(), u_index), shape=(6 * f_count, 6 * f_count)) - y_mat @ w_mat.T
-            d_p = spsolve(reduced.tocsc(), -g_p.ravel() + y_mat @ g_x.ravel(), permc_spec="MMD_AT_PLUS_A")
+            w_mat = sparse.bsr_matrix((w[by_frame], block_columns, block_rows), shape=(6 * f_count, 3 * n_count))
+            y_mat = sparse.bsr_matrix((y[by_frame], block_columns, block_rows), shape=(6 * f_count, 3 * n_count))
+            product, rhs = y_mat @ w_mat.T, -g_p.ravel() + y_mat @ g_x.ravel()
+            if product.nnz > _DENSE_SOLVE * (6 * f_count) ** 2:  # one dense copy of S, solved in place
+                reduced = np.zeros((f_count, 6, f_count, 6))
+                block_row = np.repeat(np.arange(f_count), np.diff(product.indptr))
+                reduced[block_row, :, product.indices, :] = product.data  # toarray() would go through COO
+                del product
+                np.negative(reduced, out=reduced)
+                frames = np.arange(f_count)
+                reduced[frames, :, frames, :] += u_d
+                reduced = reduced.reshape(6 * f_count, 6 * f_count)
+                d_p = linalg.solve(reduced, rhs, overwrite_a=True, check_finite=False)
+            else:
+                frames = np.arange(f_count + 1)
+                reduced = sparse.bsr_matrix((u_d, frames[:-1], frames), shape=(6 * f_count, 6 * f_count)) - product
+                d_p = spsolve(reduced.tocsc(), rhs, permc_spec="MMD_AT_PLUS_A")
             back = w_mat.T @ d_p
         d_x = (v_inv @ (-g_x - back.reshape(n_count, 3))[..., None])[..., 0]
         return d_p.reshape(f_count, 6), d_x

@@ -39,10 +39,15 @@ from scipy import ndimage
 from ..errors import InputError
 from ..geometry import invert_transform, make_transform, rotation_between_directions
 from ..io.video import PackedMasks
+from ..reproducible import snap_pose
 from .camera_pose import CameraPoses, bearings_of, fit_camera_poses
 from .tracks import Tracks, _check_video, track
 
 __all__ = ["CameraMotion", "estimate_camera_motion", "to_world"]
+
+#: Grid of the rotations (radians of their rotation vectors): far finer than their accuracy, far coarser than
+#: the last bits another machine's SVD changes.
+_STEP = 2.0 ** -20
 
 
 @dataclass(frozen=True)
@@ -110,11 +115,17 @@ def _ransac_rotation(src: np.ndarray, dst: np.ndarray, threshold: float, iterati
     errors = np.linalg.norm(dst[None] - src @ np.swapaxes(hypotheses, 1, 2), axis=2)  # (I, N)
     inliers = errors[np.argmax((errors < threshold).sum(axis=1))] < threshold
     for _ in range(3):  # refit on the consensus, then re-select it
-        r = rotation_between_directions(src[inliers], dst[inliers])
+        r = _snapped(rotation_between_directions(src[inliers], dst[inliers]))
         inliers = np.linalg.norm(dst - src @ r.T, axis=1) < threshold
         if inliers.sum() < 2:
             break
     return r, inliers
+
+
+def _snapped(rotation: np.ndarray) -> np.ndarray:
+    """``rotation`` (3, 3) rounded onto :data:`_STEP`'s grid: it places the directions of the tracks found in
+    its frame, which later frames' RANSAC starts from, so its last bits (another machine's SVD) would carry on."""
+    return snap_pose(make_transform(rotation, np.zeros(3)), _STEP)[:3, :3]
 
 
 def _displacement(tracks: Tracks, min_tracks: int) -> float:

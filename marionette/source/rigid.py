@@ -412,6 +412,8 @@ class RigidFit:
     timings: dict[str, float] = field(default_factory=dict)
 
 
+#: Point-frames per chunk of :func:`_reprojection_errors`.
+_ERROR_CHUNK = 1 << 20
 #: What a frame's PnP starts from, the lifted points (N, 3) and the guessed pose, is rounded to this grid
 #: (the shape prior's units, its RMS radius 1; radians): RANSAC keeps its best random sample, and where two
 #: poses have about the same support (a fast, blurred frame) which one wins follows the last bits of its input
@@ -616,12 +618,18 @@ def _chain_errors(observed: np.ndarray, uv: np.ndarray, k: np.ndarray, poses: np
 def _reprojection_errors(k: np.ndarray, poses: np.ndarray, points: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """Pixel distances (T, N) between points (N, 3) moved by poses (T, 4, 4) and observations uv (T, N, 2).
 
-    Infinite where a point is unknown (NaN), behind the camera or unobserved.
+    Infinite where a point is unknown (NaN), behind the camera or unobserved. Computed a few frames at a time:
+    a long clip's (T, N, 3) camera points would take gigabytes.
     """
-    cam = np.einsum("tij,nj->tni", poses[:, :3, :3], points) + poses[:, None, :3, 3]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        err = np.linalg.norm(cam[..., :2] / cam[..., 2:] * [k[0, 0], k[1, 1]] + [k[0, 2], k[1, 2]] - uv, axis=2)
-    return np.where(np.isfinite(err) & (cam[..., 2] > 0), err, np.inf)
+    err = np.empty(uv.shape[:2])
+    step = max(1, _ERROR_CHUNK // max(len(points), 1))
+    for a in range(0, len(poses), step):
+        cam = np.einsum("tij,nj->tni", poses[a:a + step, :3, :3], points) + poses[a:a + step, None, :3, 3]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            dist = np.linalg.norm(cam[..., :2] / cam[..., 2:] * [k[0, 0], k[1, 1]] + [k[0, 2], k[1, 2]]
+                                  - uv[a:a + step], axis=2)
+        err[a:a + step] = np.where(np.isfinite(dist) & (cam[..., 2] > 0), dist, np.inf)
+    return err
 
 
 #: ``recover(t, source, source_pose, guess, uv, depth, replace)`` → (pose or None, note): frame t's pose (4, 4)
@@ -668,7 +676,7 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
     """
     k = shape.K
     num_frames, num_tracks = tracks.visible.shape
-    uv = tracks.uv.astype(np.float64)
+    uv = tracks.uv  # (T, M, 2) float32, cast where used: a long clip's tracks in float64 are half a gigabyte
     poses = np.tile(np.eye(4), (num_frames, 1, 1))
     points = np.full((num_tracks, 3), np.nan)
     directions = np.full((num_tracks, 3), np.nan)  # unit lifting ray of each point, body coordinates
@@ -693,7 +701,7 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
         seen = np.nonzero(tracks.visible[source] & np.isfinite(points[:, 0]))[0]
         err = _reprojection_errors(k, poses[source][None], points[seen], uv[source, seen][None])[0]
         seen = seen[err <= 2 * options.ransac_threshold]
-        aligned, note = recover(t, source, poses[source], guess, uv[source, seen],
+        aligned, note = recover(t, source, poses[source], guess, uv[source, seen].astype(np.float64),
                                 transform_points(poses[source], points[seen])[:, 2], replace)
         t_recover += time.perf_counter() - t0
         return (None if aligned is None else snap_pose(aligned, _RECOVERED_STEP)), note
@@ -719,7 +727,8 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
         if miss.any() and len(known):
             # Mask pixels outside the moved prior volume: take nearby tracks' depth.
             depth = transform_points(pose, points[known])[:, 2]
-            lifted[miss] = _lift_by_neighbours(uv[t, new[miss]], uv[t, known], depth, pose, k)
+            lifted[miss] = _lift_by_neighbours(uv[t, new[miss]].astype(np.float64), uv[t, known].astype(np.float64),
+                                               depth, pose, k)
         points[new] = lifted
         birth[new] = lifted
         centre = invert_transform(pose)[:3, 3]
