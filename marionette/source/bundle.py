@@ -58,6 +58,13 @@ def _sum_by(index: np.ndarray, values: np.ndarray, count: int) -> np.ndarray:
     return out.reshape((count,) + values.shape[1:])
 
 
+def _dense_is_cheaper(point_of_observation: np.ndarray, f_count: int, n_count: int) -> bool:
+    """Whether the reduced system of F free frames and N points is better formed dense than block-sparse, given
+    the point (M,) of each observation of a free frame (see :data:`_BLAS_SPEEDUP`)."""
+    pairs = float(np.sum(np.bincount(point_of_observation, minlength=n_count).astype(np.float64) ** 2))
+    return f_count ** 2 * n_count / _BLAS_SPEEDUP < pairs and 2 * 18 * 8 * f_count * n_count <= _DENSE_BYTES
+
+
 def bundle_adjust(observed: np.ndarray, uv: np.ndarray, k: np.ndarray, poses: np.ndarray, points: np.ndarray,
                   directions: np.ndarray, free: np.ndarray, prior_weight: float, loss_scale: float,
                   max_evaluations: int = 30, held: np.ndarray | None = None,
@@ -89,14 +96,11 @@ def bundle_adjust(observed: np.ndarray, uv: np.ndarray, k: np.ndarray, poses: np
     obs_slot = slot[obs_t[moving]]
     fxy, cxy = np.array([k[0, 0], k[1, 1]]), np.array([k[0, 2], k[1, 2]])
     start = np.asarray(points, np.float64)
-    # W and W V⁻¹ of long clips as block-sparse rows (one 6 × 3 block per moving observation), in frame order,
-    # unless the dense layout is cheaper (see _BLAS_SPEEDUP).
-    by_frame = np.lexsort((obs_i[moving], obs_slot))
-    block_columns = obs_i[moving][by_frame]
-    block_rows = np.searchsorted(obs_slot[by_frame], np.arange(f_count + 1))
-    pairs = float(np.sum(np.bincount(obs_i[moving], minlength=n_count).astype(np.float64) ** 2))
-    dense = f_count <= _DENSE_FRAMES or (f_count ** 2 * n_count / _BLAS_SPEEDUP < pairs
-                                         and 2 * 18 * 8 * f_count * n_count <= _DENSE_BYTES)
+    dense = f_count <= _DENSE_FRAMES or _dense_is_cheaper(obs_i[moving], f_count, n_count)
+    if not dense:  # W and W V⁻¹ as block-sparse rows (one 6 × 3 block per moving observation), in frame order
+        by_frame = np.lexsort((obs_i[moving], obs_slot))
+        block_columns = obs_i[moving][by_frame]
+        block_rows = np.searchsorted(obs_slot[by_frame], np.arange(f_count + 1))
 
     def evaluate(rot: np.ndarray, trans: np.ndarray, pts: np.ndarray):
         rx = np.einsum("oij,oj->oi", rot[obs_t], pts[obs_i])  # (O, 3)
