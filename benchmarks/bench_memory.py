@@ -15,8 +15,10 @@ of that process (``wait4``'s ``ru_maxrss``) with the wall time of each stage
 from __future__ import annotations
 
 import argparse
+import multiprocessing
 import os
 import platform
+import resource
 import subprocess
 import sys
 import time
@@ -84,17 +86,30 @@ that these stay bounded.
 
 
 def make_clip(cache: Path, frames: int, size: tuple[int, int]) -> tuple[Path, Path]:
-    """The cached clip ``cache/clip.mp4`` and its mask folder ``cache/masks``; rendered when missing."""
+    """The cached clip ``cache/clip.mp4`` and its mask folder ``cache/masks``; rendered when missing.
+
+    Rendered in a process of its own: a child started later inherits its parent's high-water mark at ``exec``
+    (Linux keeps the larger of the two in ``ru_maxrss``), so a parent that had held the rendered clip would
+    show up as the child's peak.
+    """
     video, masks = cache / "clip.mp4", cache / "masks"
-    if video.is_file() and masks.is_dir() and len(list(masks.iterdir())) == frames:
-        return video, masks
+    if not (video.is_file() and masks.is_dir() and len(list(masks.iterdir())) == frames):
+        renderer = multiprocessing.get_context("spawn").Process(target=_render_clip, args=(cache, frames, size))
+        renderer.start()
+        renderer.join()
+        if renderer.exitcode != 0:
+            raise RuntimeError(f"rendering the clip failed ({renderer.exitcode})")
+    return video, masks
+
+
+def _render_clip(cache: Path, frames: int, size: tuple[int, int]) -> None:
+    video, masks = cache / "clip.mp4", cache / "masks"
     cache.mkdir(parents=True, exist_ok=True)
     scene = make_scene("oscillation", num_frames=frames, size=size, seed=0)
     masks.mkdir(exist_ok=True)
     for t, mask in enumerate(scene.masks):
         write_image(masks / f"{t:05d}.png", mask)
     write_video(video, scene.frames, scene.fps)
-    return video, masks
 
 
 def run_extract(video: Path, masks: Path | None, output: Path) -> tuple[float, float, float, dict[str, float]]:
@@ -102,6 +117,7 @@ def run_extract(video: Path, masks: Path | None, output: Path) -> tuple[float, f
     cmd = [sys.executable, "-m", "marionette", "extract", str(video), "-o", str(output), "--quiet"]
     if masks is not None:
         cmd += ["--masks", str(masks)]
+    parent_peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     start = time.perf_counter()
     process = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True)
     _, status, usage = os.wait4(process.pid, 0)
@@ -114,7 +130,10 @@ def run_extract(video: Path, masks: Path | None, output: Path) -> tuple[float, f
     if stderr.strip():
         print(stderr.strip(), file=sys.stderr)
     timings = dict(read_prior(output).metadata["timings"])
-    return usage.ru_maxrss / 1024.0, wall, usage.ru_utime + usage.ru_stime, timings  # ru_maxrss: KiB on Linux
+    peak = usage.ru_maxrss / 1024.0
+    if peak <= parent_peak:  # the child's own peak is hidden under the one it inherited (see make_clip)
+        raise RuntimeError(f"the child's peak ({peak:.0f} MB) is not above this process's ({parent_peak:.0f} MB)")
+    return peak, wall, usage.ru_utime + usage.ru_stime, timings  # ru_maxrss: KiB on Linux
 
 
 def main() -> None:
