@@ -209,6 +209,35 @@ def test_poses_do_not_follow_rounding_noise_in_the_refinement(scene, monkeypatch
     assert perturbed.failed_frames == reference.failed_frames
 
 
+def test_the_sequential_pass_refines_a_window_of_recent_frames(scene, monkeypatch):
+    """A long clip's refinements during the sequential pass move only the last ``refine_window`` frames, the
+    earlier ones held with their tracks (their cost does not grow with the clip); the final one moves every
+    frame, and the poses come out as well as with every refinement whole."""
+    truth, tracks = scene
+    tracks, shape = add_noise(tracks, 0.5), ShapePrior.inflate(np.isfinite(ellipsoid_shape().front), K)
+    adjust, calls = rigid.bundle_adjust, []
+
+    def spy(observed, uv, k, poses, points, directions, free, prior, scale, iterations, held):
+        calls.append((free, held))
+        return adjust(observed, uv, k, poses, points, directions, free, prior, scale, iterations, held)
+
+    monkeypatch.setattr(rigid, "bundle_adjust", spy)
+    windowed = fit_rigid(tracks, shape, options=RigidOptions(refine_window=6))
+    for free, held in calls[:-2]:  # the sequential pass's, at frames 8 and 16
+        upto = free.max()
+        np.testing.assert_array_equal(free, np.arange(max(1, upto - 5), upto + 1))
+        np.testing.assert_array_equal(held, np.arange(0, upto - 5) if upto > 5 else [])
+    assert [free.max() for free, _ in calls[:-2]] == [8, 16]
+    for free, held in calls[-2:]:  # the final refinement
+        np.testing.assert_array_equal(free, np.arange(1, 24))
+        assert len(held) == 0
+    calls.clear()
+    whole = fit_rigid(tracks, shape, options=RigidOptions(refine_window=0))
+    assert [len(free) for free, _ in calls] == [8, 16, 23, 23]
+    assert median_rotation_error(windowed.poses, truth) < 0.5
+    assert abs(median_rotation_error(windowed.poses, truth) - median_rotation_error(whole.poses, truth)) < 0.1
+
+
 def test_ransac_rejects_scrambled_tracks(scene):
     truth, tracks = scene
     rng = np.random.default_rng(5)

@@ -320,6 +320,11 @@ class RigidOptions:
         Also refine all frames so far every this many frames during the
         sequential pass (0: only at the end), so that errors of the guessed
         shape are corrected before they steer the next poses.
+    refine_window : int
+        The refinements during the sequential pass move only the last this
+        many frames' poses, the earlier ones held with their tracks (0: all
+        frames): a long clip's refinements cost what a short one's do. The
+        final refinement moves every frame.
     refine_tracks : int
         About this many tracks, drawn at random (plus the longest ones where
         a frame has fewer than 30), enter the refinement; a few hundred
@@ -361,6 +366,7 @@ class RigidOptions:
     min_points: int = 6
     refine: bool = True
     refine_every: int = 8
+    refine_window: int = 200
     refine_tracks: int = 400
     refine_loss_scale: float = 1.0
     prune_threshold: float = 1.0
@@ -744,12 +750,18 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
         # A recovered pose is held: few tracks see its frame, but those born there tie the frames after a
         # gap in the tracks to the frames before it.
         held = np.array([t for t in recovered if t <= upto], np.int64)
+        # During the sequential pass a long clip's older frames are held too (a local bundle adjustment): what
+        # steers the next poses is the last frames' shape, and the cost stays bounded instead of growing with
+        # the frames squared (cubed, solved dense).
+        first = 0 if final or not options.refine_window else max(0, upto + 1 - options.refine_window)
+        held = np.union1d(held, np.nonzero(known[:first])[0])
         free = np.setdiff1d(np.nonzero(known)[0][1:], held)
         seen = tracks.visible & known[:, None]
-        lifted = np.nonzero(np.isfinite(points[:, 0]) & (seen.sum(axis=0) >= 2))[0]
+        lifted = np.isfinite(points[:, 0]) & (seen.sum(axis=0) >= 2)
+        lifted = np.nonzero(lifted & seen[first:].any(axis=0) if first else lifted)[0]
         if not len(free) or len(lifted) < options.min_points:
             return
-        chosen = _choose_tracks(seen[:, lifted], options.refine_tracks, options.seed, lifted, chains[lifted])
+        chosen = _choose_tracks(seen[first:, lifted], options.refine_tracks, options.seed, lifted, chains[lifted])
         observed = seen[:, chosen]
         iterations = 30 if final else 10
         _, piece_of, pieces = np.unique(chains[chosen], return_inverse=True, return_counts=True)
