@@ -92,8 +92,14 @@ def test_reaches_the_optimum_of_the_dense_twin(seed, layout, monkeypatch):
         monkeypatch.setattr(bundle, "_DENSE_FRAMES", 0)
         monkeypatch.setattr(bundle, "_BLAS_SPEEDUP", 1e12 if layout == "dense by cost" else 1e-12)
         monkeypatch.setattr(bundle, "_DENSE_SOLVE", 0.0 if layout == "sparse, solved dense" else 1.1)
-    sparse_solves = []
+    sparse_solves, dense_solves, solve = [], [], bundle.linalg.solve
     monkeypatch.setattr(bundle, "spsolve", lambda *a, **kw: sparse_solves.append(1) or spsolve(*a, **kw))
+
+    def in_place(a, b, **kwargs):  # LAPACK overwrites only a Fortran-ordered matrix; scipy copies any other
+        dense_solves.append(a.flags.f_contiguous and kwargs["overwrite_a"])
+        return solve(a, b, **kwargs)
+
+    monkeypatch.setattr(bundle.linalg, "solve", in_place)
     observed, uv, start, lifted, directions = problem(seed)
     free = np.arange(1, len(start))
     poses, points = bundle_adjust(observed, uv, K, start, lifted, directions, free, PRIOR, SCALE, 200, ftol=1e-14)
@@ -108,6 +114,8 @@ def test_reaches_the_optimum_of_the_dense_twin(seed, layout, monkeypatch):
     # and the start was far from it: the solver did real work
     assert total_cost(observed, uv, start, lifted, lifted, directions, known) > 2 * cost
     assert bool(sparse_solves) == (layout == "sparse")
+    assert dense_solves == ([True] * len(dense_solves) if layout == "sparse, solved dense" else [])
+    assert bool(dense_solves) == (layout == "sparse, solved dense")
 
 
 def test_held_and_unlisted_frames_keep_their_poses_and_their_observations_count():
