@@ -92,6 +92,7 @@ def test_reaches_the_optimum_of_the_dense_twin(seed, layout, monkeypatch):
         monkeypatch.setattr(bundle, "_DENSE_FRAMES", 0)
         monkeypatch.setattr(bundle, "_BLAS_SPEEDUP", 1e12 if layout == "dense by cost" else 1e-12)
         monkeypatch.setattr(bundle, "_DENSE_SOLVE", 0.0 if layout == "sparse, solved dense" else 1.1)
+        monkeypatch.setattr(bundle, "_SLAB_BYTES", 1)  # formed one frame's row of blocks at a time
     sparse_solves, dense_solves, solve = [], [], bundle.linalg.solve
     monkeypatch.setattr(bundle, "spsolve", lambda *a, **kw: sparse_solves.append(1) or spsolve(*a, **kw))
 

@@ -217,6 +217,7 @@ def test_chains_join_the_pieces_of_tracks():
     assert joined.num_tracks == 2 and (joined.continues == -1).all()
     part = tracks.subset(np.array([False, True, True, True]))  # the first piece dropped: the second counts as seeded
     np.testing.assert_array_equal(part.continues, [-1, -1, 0])
+    assert tracks.subset(np.ones(4, bool)) is tracks  # not a copy: a long clip's tracks are hundreds of MB
     with pytest.raises(ValueError, match="continues"):
         Tracks(uv, np.isfinite(uv[..., 0]), np.array([0, 2, 0, 3]), continues=np.array([-1, 1, -1, 1]))
 

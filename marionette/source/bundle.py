@@ -36,6 +36,9 @@ _DENSE_FRAMES = 250
 _BLAS_SPEEDUP = 30.0
 _DENSE_BYTES = 256 * 2 ** 20
 _DENSE_SOLVE = 0.25
+# A block-sparse S solved dense is formed a slab of frames at a time, each slab's product at most this large, so
+# that the product is never held whole next to its dense copy (288 MB each at 1000 frames).
+_SLAB_BYTES = 32 * 2 ** 20
 
 
 def huber_cost(residuals: np.ndarray, scale: float) -> float:
@@ -101,6 +104,10 @@ def bundle_adjust(observed: np.ndarray, uv: np.ndarray, k: np.ndarray, poses: np
         by_frame = np.lexsort((obs_i[moving], obs_slot))
         block_columns = obs_i[moving][by_frame]
         block_rows = np.searchsorted(obs_slot[by_frame], np.arange(f_count + 1))
+        # The pairs of frames that share a point are S's blocks (the product below has these).
+        incidence = sparse.csr_matrix((np.ones(len(block_columns)), block_columns, block_rows),
+                                      shape=(f_count, n_count))
+        solve_dense = (incidence @ incidence.T).nnz > _DENSE_SOLVE * f_count ** 2
 
     def evaluate(rot: np.ndarray, trans: np.ndarray, pts: np.ndarray):
         rx = np.einsum("oij,oj->oi", rot[obs_t], pts[obs_i])  # (O, 3)
@@ -149,13 +156,20 @@ def bundle_adjust(observed: np.ndarray, uv: np.ndarray, k: np.ndarray, poses: np
             back = d_p @ w_mat
         else:  # two frames couple only through points seen in both: S is banded, as wide as the tracks are long
             w_mat = sparse.bsr_matrix((w[by_frame], block_columns, block_rows), shape=(6 * f_count, 3 * n_count))
-            y_mat = sparse.bsr_matrix((y[by_frame], block_columns, block_rows), shape=(6 * f_count, 3 * n_count))
-            product, rhs = y_mat @ w_mat.T, -g_p.ravel() + y_mat @ g_x.ravel()
-            if product.nnz > _DENSE_SOLVE * (6 * f_count) ** 2:  # one dense copy of S, solved in place
+            y_blocks = y[by_frame]
+            y_mat = sparse.bsr_matrix((y_blocks, block_columns, block_rows), shape=(6 * f_count, 3 * n_count))
+            rhs = -g_p.ravel() + y_mat @ g_x.ravel()
+            if solve_dense:  # one dense copy of S, solved in place
                 reduced = np.zeros((f_count, 6, f_count, 6))
-                block_row = np.repeat(np.arange(f_count), np.diff(product.indptr))
-                reduced[block_row, :, product.indices, :] = product.data  # toarray() would go through COO
-                del product
+                w_t, slab = w_mat.T, max(1, _SLAB_BYTES // (36 * 8 * f_count))
+                for a in range(0, f_count, slab):  # block rows a..b-1 of Y Wᵀ, each summed as in the whole product
+                    b = min(a + slab, f_count)
+                    lo, hi = block_rows[a], block_rows[b]
+                    y_rows = sparse.bsr_matrix((y_blocks[lo:hi], block_columns[lo:hi], block_rows[a:b + 1] - lo),
+                                               shape=(6 * (b - a), 3 * n_count))
+                    part = y_rows @ w_t
+                    block_row = np.repeat(np.arange(a, b), np.diff(part.indptr))
+                    reduced[block_row, :, part.indices, :] = part.data  # toarray() would go through COO
                 np.negative(reduced, out=reduced)
                 frames = np.arange(f_count)
                 reduced[frames, :, frames, :] += u_d
@@ -165,7 +179,8 @@ def bundle_adjust(observed: np.ndarray, uv: np.ndarray, k: np.ndarray, poses: np
                 d_p = linalg.solve(reduced, rhs, transposed=True, overwrite_a=True, check_finite=False)
             else:
                 frames = np.arange(f_count + 1)
-                reduced = sparse.bsr_matrix((u_d, frames[:-1], frames), shape=(6 * f_count, 6 * f_count)) - product
+                u_mat = sparse.bsr_matrix((u_d, frames[:-1], frames), shape=(6 * f_count, 6 * f_count))
+                reduced = u_mat - y_mat @ w_mat.T
                 d_p = spsolve(reduced.tocsc(), rhs, permc_spec="MMD_AT_PLUS_A")
             back = w_mat.T @ d_p
         d_x = (v_inv @ (-g_x - back.reshape(n_count, 3))[..., None])[..., 0]

@@ -162,7 +162,10 @@ class Tracks:
         return np.unique(root, return_inverse=True)[1].astype(np.int64)
 
     def subset(self, keep: np.ndarray) -> "Tracks":
-        """The tracks ``keep`` ((M,) bool) selects; a kept track whose predecessor is dropped counts as seeded."""
+        """The tracks ``keep`` ((M,) bool) selects; a kept track whose predecessor is dropped counts as seeded.
+        Keeping all of them gives these tracks themselves (a long clip's are hundreds of megabytes)."""
+        if np.all(keep):
+            return self
         index = np.full(self.num_tracks, -1, np.int64)
         index[keep] = np.arange(int(np.count_nonzero(keep)))
         continues = np.where(self.continues[keep] >= 0, index[np.maximum(self.continues[keep], 0)], -1)
