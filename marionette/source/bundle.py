@@ -102,6 +102,8 @@ def bundle_adjust(observed: np.ndarray, uv: np.ndarray, k: np.ndarray, poses: np
     dense = f_count <= _DENSE_FRAMES or _dense_is_cheaper(obs_i[moving], f_count, n_count)
     if not dense:  # W and W V⁻¹ as block-sparse rows (one 6 × 3 block per moving observation), in frame order
         by_frame = np.lexsort((obs_i[moving], obs_slot))
+        if np.array_equal(by_frame, np.arange(len(by_frame))):
+            by_frame = slice(None)  # in frame order already (free frames ascending): views, not copies
         block_columns = obs_i[moving][by_frame]
         block_rows = np.searchsorted(obs_slot[by_frame], np.arange(f_count + 1))
         # The pairs of frames that share a point are S's blocks (the product below has these).
