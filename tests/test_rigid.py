@@ -238,6 +238,16 @@ def test_the_sequential_pass_refines_a_window_of_recent_frames(scene, monkeypatc
     assert abs(median_rotation_error(windowed.poses, truth) - median_rotation_error(whole.poses, truth)) < 0.1
 
 
+def test_points_left_out_of_the_refinement_are_fitted_in_chunks_to_the_same_bits(scene, monkeypatch):
+    truth, tracks = scene
+    tracks, shape = add_noise(tracks, 0.5), ShapePrior.inflate(np.isfinite(ellipsoid_shape().front), K)
+    whole = fit_rigid(tracks, shape)
+    monkeypatch.setattr(rigid, "_POINT_CHUNK", 7)
+    chunked = fit_rigid(tracks, shape)
+    assert np.array_equal(chunked.poses, whole.poses)
+    assert np.array_equal(chunked.points, whole.points, equal_nan=True)
+
+
 def test_ransac_rejects_scrambled_tracks(scene):
     truth, tracks = scene
     rng = np.random.default_rng(5)

@@ -420,6 +420,9 @@ class RigidFit:
 
 #: Point-frames per chunk of :func:`_reprojection_errors`.
 _ERROR_CHUNK = 1 << 20
+#: Points per call of :func:`_refine_points` for the points left out of a refinement: all of them at once, a
+#: long clip's observations took several hundred megabytes of temporaries.
+_POINT_CHUNK = 2048
 #: What a frame's PnP starts from, the lifted points (N, 3) and the guessed pose, is rounded to this grid
 #: (the shape prior's units, its RMS radius 1; radians): RANSAC keeps its best random sample, and where two
 #: poses have about the same support (a fast, blurred frame) which one wins follows the last bits of its input
@@ -789,7 +792,9 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
                                                       directions[chosen], free, shape.radius, options,
                                                       iterations, held, share)
         rest = np.setdiff1d(lifted, chosen)
-        points[rest] = _refine_points(seen[:, rest], uv[:, rest], k, poses, points[rest], options.refine_loss_scale)
+        for at in range(0, len(rest), _POINT_CHUNK):  # each point is fitted alone: chunks change nothing
+            few = rest[at:at + _POINT_CHUNK]
+            points[few] = _refine_points(seen[:, few], uv[:, few], k, poses, points[few], options.refine_loss_scale)
         # A point sent far from the body is not on it: its track's rays were nearly parallel, or it follows
         # another body, and its place is noise (the backpack's reached 3,000 radii, where two BLAS kernels put
         # it 5e-4 apart). Its track is left out from here on (lifted again, a lid's track fitted with its box
