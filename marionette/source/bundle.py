@@ -160,10 +160,10 @@ def bundle_adjust(observed: np.ndarray, uv: np.ndarray, k: np.ndarray, poses: np
             w_mat = sparse.bsr_matrix((w[by_frame], block_columns, block_rows), shape=(6 * f_count, 3 * n_count))
             y_blocks = y[by_frame]
             y_mat = sparse.bsr_matrix((y_blocks, block_columns, block_rows), shape=(6 * f_count, 3 * n_count))
-            rhs = -g_p.ravel() + y_mat @ g_x.ravel()
+            w_t, rhs = w_mat.T, -g_p.ravel() + y_mat @ g_x.ravel()
             if solve_dense:  # one dense copy of S, solved in place
                 reduced = np.zeros((f_count, 6, f_count, 6))
-                w_t, slab = w_mat.T, max(1, _SLAB_BYTES // (36 * 8 * f_count))
+                slab = max(1, _SLAB_BYTES // (36 * 8 * f_count))
                 for a in range(0, f_count, slab):  # block rows a..b-1 of Y Wᵀ, each summed as in the whole product
                     b = min(a + slab, f_count)
                     lo, hi = block_rows[a], block_rows[b]
@@ -182,9 +182,9 @@ def bundle_adjust(observed: np.ndarray, uv: np.ndarray, k: np.ndarray, poses: np
             else:
                 frames = np.arange(f_count + 1)
                 u_mat = sparse.bsr_matrix((u_d, frames[:-1], frames), shape=(6 * f_count, 6 * f_count))
-                reduced = u_mat - y_mat @ w_mat.T
+                reduced = u_mat - y_mat @ w_t
                 d_p = spsolve(reduced.tocsc(), rhs, permc_spec="MMD_AT_PLUS_A")
-            back = w_mat.T @ d_p
+            back = w_t @ d_p
         d_x = (v_inv @ (-g_x - back.reshape(n_count, 3))[..., None])[..., 0]
         return d_p.reshape(f_count, 6), d_x
 
