@@ -113,6 +113,40 @@ def test_model_is_loaded_once(monkeypatch):
     assert default_model() is default_model()
 
 
+
+def test_release_frees_the_session_and_the_next_prediction_is_the_same(monkeypatch):
+    img, _ = scene(H=64, W=64)
+    model = SalientModel()
+    first = model.predict(img)
+    held = model._session
+    model.release()
+    assert model._session is None
+    np.testing.assert_array_equal(model.predict(img), first)
+    assert model._session is not None and model._session is not held
+
+
+def test_the_default_model_holds_no_session_after_one_image_or_a_video(monkeypatch):
+    """Its memory arena (0.3-0.5 GB) would otherwise stay for the rest of the process; a model passed in is the
+    caller's to keep."""
+    from marionette.segment import Prompt, prompted_mask
+    from marionette.source.foreground import auto_masks
+
+    shared = SalientModel()
+    monkeypatch.setattr("marionette.segment._u2net.default_model", lambda: shared)
+    monkeypatch.setattr("marionette.source.foreground.default_model", lambda: shared)
+    img, _ = scene(H=64, W=64)
+    salient_mask(img)
+    assert shared._session is None
+    prompted_mask(img, Prompt(points=((32.0, 32.0),)))
+    assert shared._session is None
+    frames = np.stack([np.roll(img, 2 * t, axis=1) for t in range(4)])
+    auto_masks(frames)
+    assert shared._session is None
+    mine = SalientModel()
+    salient_mask(img, model=mine)
+    auto_masks(frames, model=mine)
+    assert mine._session is not None
+
 def test_bad_inputs_are_refused(model):
     img, truth = scene(H=64, W=64)
     for bad in (img[..., 0], img.astype(np.float32), np.dstack([img, img[..., :1]])):

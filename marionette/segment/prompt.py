@@ -28,7 +28,7 @@ import numpy as np
 
 from ..errors import InputError
 from ._grabcut import check_image, grabcut_labels, keep_main_object
-from ._u2net import SalientModel, default_model
+from ._u2net import SalientModel, predict_raw
 
 __all__ = ["Prompt", "prompted_mask"]
 
@@ -118,15 +118,16 @@ def _box_pixels(box, width: int, height: int, margin: float = 0.0) -> tuple[int,
             min(width, int(np.ceil(x1 + mx)) + 1), min(height, int(np.ceil(y1 + my)) + 1))
 
 
-def _saliency(image: np.ndarray, prompt: Prompt, model: SalientModel) -> np.ndarray:
-    """(H, W) float32 object probability: the model on the box's neighbourhood (zero elsewhere), or on the image."""
+def _saliency(image: np.ndarray, prompt: Prompt, model: SalientModel | None) -> np.ndarray:
+    """(H, W) float32 object probability: the model (by default the packaged one) on the box's neighbourhood
+    (zero elsewhere), or on the image."""
     h, w = image.shape[:2]
     if prompt.box is None:
-        return model.predict(image, normalize=False)
+        return predict_raw(image, model)
     x0, y0, x1, y1 = _box_pixels(prompt.box, w, h, _BOX_MARGIN)
     prob = np.zeros((h, w), np.float32)
     if x1 - x0 >= 8 and y1 - y0 >= 8:
-        prob[y0:y1, x0:x1] = model.predict(np.ascontiguousarray(image[y0:y1, x0:x1]), normalize=False)
+        prob[y0:y1, x0:x1] = predict_raw(np.ascontiguousarray(image[y0:y1, x0:x1]), model)
     return prob
 
 
@@ -143,7 +144,7 @@ def prompted_mask(image: np.ndarray, prompt: Prompt, *, model: SalientModel | No
         raise InputError("a prompt needs a point or a box on the object")
     diagonal = float(np.hypot(w, h))
     radius = max(1, round(_POINT_RADIUS * diagonal))
-    salient = _saliency(image, prompt, model or default_model()) >= 0.5
+    salient = _saliency(image, prompt, model) >= 0.5
     touch = max(radius, round(_TOUCH * diagonal))
     # A salient thing next to an excluded point and no point is background as a whole.
     near_points = _discs((h, w), prompt.points, touch)

@@ -356,6 +356,7 @@ def auto_masks(frames: np.ndarray | VideoFrames, *, key_every: int = 8, options:
     if isinstance(key_every, bool) or int(key_every) != key_every or key_every < 1:
         raise InputError(f"foreground: key_every must be an integer >= 1, got {key_every!r}")
     options = options or ForegroundOptions()
+    release = model is None
     model = model or default_model()
     T, H, W = frames.shape[:3]
     scale = min(1.0, options.work_side / max(H, W))
@@ -378,6 +379,8 @@ def auto_masks(frames: np.ndarray | VideoFrames, *, key_every: int = 8, options:
             prob = model.predict(frame, normalize=False)
             salient_keys[t] = cv2.resize(prob, (w, h), interpolation=cv2.INTER_AREA)
         advance()
+    if release:  # the later stages need none of its memory arena (0.5 GB, held by the session)
+        model.release()
     keep = max(_FLOW_CACHE_BYTES // (8 * h * w), key_every + 2 * max(options.motion_window, options.union_radius) + 2)
     fwd = _Flows(grey, forward=True, keep=keep)  # flow t → t+1, in frame t's grid
     bwd = _Flows(grey, forward=False, keep=keep)  # flow t+1 → t, in frame t+1's grid
