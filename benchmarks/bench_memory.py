@@ -63,10 +63,13 @@ NOTES = """## Before
   evaluations, 241 MB loaded): peak 1385 MB before, 873 MB after, the same poses to 3e-15.
 - 2026-12-06 (949c73b): 1539 MB with masks, 1944 MB without (5 % under the budget). The final refinement
   then fitted the points it leaves out (every other track, 20,000 pieces here) with all their observations at
-  once; now 2048 points at a time (each point is fitted alone: the same bits). The table above is this code:
-  1495 MB with masks; without masks 1983 MB, 3 % under the budget and not lowered by the change (the
-  foreground stage leaves about 1.2 GB that the allocator keeps, and how much of it later stages reuse
-  varies from run to run). The closest margin on this page.
+  once; now 2048 points at a time (each point is fitted alone: the same bits).
+- 2026-12-06 (f8e6d5d): 1495 MB with masks; without masks 1983 MB, 3 % under the budget. The extra 0.5 GB
+  without masks was the salient-object network's: ONNX Runtime keeps a memory arena as large as its largest
+  run needed (about 0.3 GB after one 320 x 320 prediction, 0.5 GB after a few) for as long as the session
+  lives, and the packaged model's session lived to the end of the process. Now the foreground stage releases
+  it once the key frames are done (as do one photo's or prompt's mask; a new session takes about 40 ms),
+  and the case without masks is below the one with them (the table above).
 
 ## Time
 
@@ -96,7 +99,8 @@ Now:
   the current frame is held;
 - masks are packed bits (`PackedMasks`, 51 MB here) and unpacked per frame;
 - the foreground keeps one greyscale frame per frame at the working size
-  (130 MB here) and packed masks; flows are computed on demand with a
+  (130 MB here) and packed masks, and frees the salient-object network's
+  session (its memory arena) after the key frames; flows are computed on demand with a
   bounded cache (128 MB per direction) and recomputed by later stages when
   they fell out of it; saliency is propagated and the background residuals
   are computed in the same pass, frame by frame;

@@ -335,7 +335,8 @@ def auto_masks(frames: np.ndarray | VideoFrames, *, key_every: int = 8, options:
     options : ForegroundOptions, optional
         Motion thresholds, windows and clean-up; defaults documented there.
     model : SalientModel, optional
-        The salient-object network; the packaged U²-Netp by default.
+        The salient-object network; by default the packaged U²-Netp, whose
+        session is released once the key frames are done.
     packed : bool
         Return :class:`~marionette.io.video.PackedMasks` (an eighth of the memory).
     progress : callable(done, total), optional
@@ -372,15 +373,17 @@ def auto_masks(frames: np.ndarray | VideoFrames, *, key_every: int = 8, options:
 
     grey = np.empty((T, h, w), np.uint8)
     salient_keys = {}
-    for t in range(T):
-        frame = frames[t]
-        grey[t] = cv2.resize(cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY), (w, h), interpolation=cv2.INTER_AREA)
-        if t in keys:
-            prob = model.predict(frame, normalize=False)
-            salient_keys[t] = cv2.resize(prob, (w, h), interpolation=cv2.INTER_AREA)
-        advance()
-    if release:  # the later stages need none of its memory arena (0.5 GB, held by the session)
-        model.release()
+    try:
+        for t in range(T):
+            frame = frames[t]
+            grey[t] = cv2.resize(cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY), (w, h), interpolation=cv2.INTER_AREA)
+            if t in keys:
+                prob = model.predict(frame, normalize=False)
+                salient_keys[t] = cv2.resize(prob, (w, h), interpolation=cv2.INTER_AREA)
+            advance()
+    finally:
+        if release:  # nothing after needs its session's memory arena (0.5 GB)
+            model.release()
     keep = max(_FLOW_CACHE_BYTES // (8 * h * w), key_every + 2 * max(options.motion_window, options.union_radius) + 2)
     fwd = _Flows(grey, forward=True, keep=keep)  # flow t → t+1, in frame t's grid
     bwd = _Flows(grey, forward=False, keep=keep)  # flow t+1 → t, in frame t+1's grid
