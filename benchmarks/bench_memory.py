@@ -9,7 +9,7 @@ of that process (``wait4``'s ``ru_maxrss``) with the wall time of each stage
 ``extract_prior``: start-up, decoding, mask reading). Writes
 ``docs/benchmarks/memory.md``.
 
-    python benchmarks/bench_memory.py [--frames 1000] [--size 854x480] [--cases masks,auto]
+    python benchmarks/bench_memory.py [--frames 1000] [--size 854x480] [--cases masks,auto,prompt]
 """
 
 from __future__ import annotations
@@ -24,9 +24,11 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-from marionette.io import read_prior, write_image, write_video  # noqa: E402 (after OPENBLAS_NUM_THREADS)
+from marionette.io import read_mask, read_prior, write_image, write_video  # noqa: E402 (after OPENBLAS_NUM_THREADS)
 from marionette.synthetic import make_scene  # noqa: E402
 
 BUDGET_MB = 2048
@@ -68,8 +70,10 @@ NOTES = """## Before
   without masks was the salient-object network's: ONNX Runtime keeps a memory arena as large as its largest
   run needed (about 0.3 GB after one 320 x 320 prediction, 0.5 GB after a few) for as long as the session
   lives, and the packaged model's session lived to the end of the process. Now the foreground stage releases
-  it once the key frames are done (as do one photo's or prompt's mask; a new session takes about 40 ms),
-  and the case without masks is below the one with them (the table above).
+  it once the key frames are done (as do one photo's or prompt's mask; a new session takes about 40 ms).
+  Measured the same day before that change's full run: 1407 MB without masks (in a run of that case alone).
+  The `prompt` case (a click on frame 0, `--source-point`) was added then; its masks are found before
+  `extract_prior` starts, so its foreground time is part of 'reading'.
 
 ## Time
 
@@ -144,11 +148,21 @@ def _render_clip(cache: Path, frames: int, size: tuple[int, int]) -> None:
     write_video(video, scene.frames, scene.fps)
 
 
-def run_extract(video: Path, masks: Path | None, output: Path) -> tuple[float, float, float, dict[str, float]]:
+def case_options(case: str, masks: Path) -> list[str]:
+    """``marionette extract`` options of a case: the masks given, none, or a click on the object's frame-0 centre."""
+    if case == "masks":
+        return ["--masks", str(masks)]
+    if case == "prompt":
+        rows, cols = np.nonzero(read_mask(sorted(masks.iterdir())[0]))
+        return ["--source-point", f"{cols.mean():.0f},{rows.mean():.0f}"]
+    if case == "auto":
+        return []
+    raise SystemExit(f"error: unknown case {case!r} (masks, auto, prompt)")
+
+
+def run_extract(video: Path, options: list[str], output: Path) -> tuple[float, float, float, dict[str, float]]:
     """Run ``marionette extract`` in a child process → (peak RSS in MB, wall and CPU seconds, stage timings)."""
-    cmd = [sys.executable, "-m", "marionette", "extract", str(video), "-o", str(output), "--quiet"]
-    if masks is not None:
-        cmd += ["--masks", str(masks)]
+    cmd = [sys.executable, "-m", "marionette", "extract", str(video), "-o", str(output), "--quiet", *options]
     parent_peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     start = time.perf_counter()
     process = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True)
@@ -172,7 +186,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=1000)
     parser.add_argument("--size", default="854x480")
-    parser.add_argument("--cases", default="masks,auto", help="masks (given masks), auto (found automatically)")
+    parser.add_argument("--cases", default="masks,auto",
+                        help="masks (given masks), auto (found automatically), prompt (a click on frame 0)")
     parser.add_argument("--cache", type=Path, default=Path("/tmp/marionette-bench-memory"))
     parser.add_argument("--output", type=Path, default=OUT)
     args = parser.parse_args()
@@ -185,7 +200,7 @@ def main() -> None:
     stages = ("foreground", "tracking", "camera", "poses", "smoothing")
     rows = []
     for case in args.cases.split(","):
-        peak, wall, cpu, timings = run_extract(video, masks if case == "masks" else None, args.cache / f"{case}.npz")
+        peak, wall, cpu, timings = run_extract(video, case_options(case, masks), args.cache / f"{case}.npz")
         reading = wall - timings["total"]
         cells = [f"{timings[s]:.1f}" if s in timings else "-" for s in stages]
         rows.append(f"| {case} | {peak:.0f} | {'yes' if peak <= BUDGET_MB else 'NO'} | {wall:.1f} | {cpu:.1f} | "
@@ -200,8 +215,9 @@ def main() -> None:
         "",
         f"Input: a synthetic {args.frames}-frame {size[0]}x{size[1]} H.264 clip (`make_scene('oscillation')`) "
         "and its PNG masks. `masks`: `marionette extract clip.mp4 --masks masks/`; `auto`: without masks "
-        "(automatic foreground). Peak RSS: `ru_maxrss` of the `marionette` process (`os.wait4`). Times in "
-        "seconds: wall and CPU (user + system) time of the process; 'reading' is the wall time outside "
+        "(automatic foreground); `prompt`: `--source-point` on the object's centre in frame 0. Peak RSS: "
+        "`ru_maxrss` of the `marionette` process (`os.wait4`). Times in seconds: wall and CPU (user + system) "
+        "time of the process; 'reading' is the wall time outside "
         "`extract_prior` (start-up, decoding, masks); stages from the prior's `timings` (wall). "
         f"Budget: {BUDGET_MB} MB.",
         "",
