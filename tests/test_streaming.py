@@ -9,9 +9,10 @@ from marionette import pipeline
 from marionette.errors import InputError
 from marionette.io import write_image, write_video
 from marionette.io.video import PackedMasks, VideoFrames, open_video, read_masks, read_video
-from marionette.segment import SalientModel
+from marionette.segment import Prompt, SalientModel
 from marionette.source import extract_prior
 from marionette.source.depth import DepthMaps, poses_from_depth, read_depths
+from marionette.source.prompted import prompted_masks
 from marionette.source.tracks import track
 from marionette.synthetic import make_scene
 
@@ -120,6 +121,19 @@ def test_streamed_foreground_matches_in_memory(clip, monkeypatch):
     k = pipeline.source_intrinsics(*short.size)
     _assert_same_prior(extract_prior(lazy.frames, None, k, short.fps), extract_prior(short.frames, None, k, short.fps))
 
+
+
+def test_streamed_prompted_masks_match_in_memory(clip):
+    """The clicked object's masks read the frames once per pass (nothing kept but grey images) and give what the
+    frames in memory give."""
+    scene, root = clip
+    short = read_video(root / "clip.mp4", end=10)
+    lazy = open_video(root / "clip.mp4", end=10)
+    rows, cols = np.nonzero(scene.masks[0])
+    prompt = Prompt(points=((float(cols.mean()), float(rows.mean())),))
+    streamed = prompted_masks(lazy.frames, prompt)
+    np.testing.assert_array_equal(streamed, prompted_masks(short.frames, prompt))
+    assert (streamed[0] & ~scene.masks[0]).sum() < 0.05 * scene.masks[0].sum()  # the object, not the floor
 
 def test_lazy_depths_match(clip, tmp_path):
     scene, _ = clip

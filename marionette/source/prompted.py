@@ -80,9 +80,8 @@ def prompted_masks(frames: np.ndarray | VideoFrames, prompt: Prompt, *, options:
     def small(t: int) -> np.ndarray:
         return cv2.resize(frames[t], (w, h), interpolation=cv2.INTER_AREA) if (w, h) != (W, H) else frames[t]
 
-    colour = [small(t) for t in range(T)]
     scaled = prompt.scaled(w / W)
-    first = prompted_mask(colour[0], scaled, model=model)  # a bad prompt fails before the long work
+    first = prompted_mask(small(0), scaled, model=model)  # a bad prompt fails before the long work
     total = 5 * T - 2  # auto_masks reports 4 T - 2 steps, then one per frame here
 
     def report(done: int, _: int) -> None:
@@ -93,12 +92,16 @@ def prompted_masks(frames: np.ndarray | VideoFrames, prompt: Prompt, *, options:
         automatic = auto_masks(frames, options=options, model=model, packed=True, progress=report)
     except InputError:  # nothing salient or moving anywhere: the carried masks alone
         automatic = None
-    grey = np.stack([cv2.cvtColor(c, cv2.COLOR_RGB2GRAY) for c in colour])
+    # The frames are read again in each pass rather than kept (in colour at the working size they would hold
+    # 0.4 GB for 1000 frames); only their grey images are, for the flow.
+    grey = np.empty((T, h, w), np.uint8)
+    for t in range(T):
+        grey[t] = cv2.cvtColor(small(t), cv2.COLOR_RGB2GRAY)
     first = _moving_with(first, scaled.points, grey)
     bwd = _Flows(grey, forward=False, keep=2)  # flow t+1 → t, in frame t+1's grid
     reach = max(1, round(options.reach * max(w, h)))
     masks = PackedMasks(T, h, w)
-    masks[0] = first if automatic is None else _follow(first, colour[0], automatic[0], (w, h), reach, snap=False)
+    masks[0] = first if automatic is None else _follow(first, None, automatic[0], (w, h), reach, snap=False)
     out = PackedMasks(T, H, W) if packed else np.empty((T, H, W), bool)
     for t in range(T):
         if t:
@@ -106,7 +109,7 @@ def prompted_masks(frames: np.ndarray | VideoFrames, prompt: Prompt, *, options:
             if not carried.any():
                 raise InputError(f"the prompted object is lost at frame {t} (it left the picture?); "
                                  "pass --masks DIR")
-            masks[t] = _follow(carried, colour[t], None if automatic is None else automatic[t], (w, h), reach)
+            masks[t] = _follow(carried, small(t), None if automatic is None else automatic[t], (w, h), reach)
         out[t] = cv2.resize(masks[t].astype(np.float32), (W, H), interpolation=cv2.INTER_LINEAR) >= 0.5
         report(4 * T - 2 + t + 1, total)
     return out
@@ -156,10 +159,11 @@ def _moving_with(mask: np.ndarray, points, grey: np.ndarray) -> np.ndarray:
     return filled & mask
 
 
-def _follow(carried: np.ndarray, image: np.ndarray, automatic: np.ndarray | None, size: tuple[int, int],
+def _follow(carried: np.ndarray, image: np.ndarray | None, automatic: np.ndarray | None, size: tuple[int, int],
             reach: int, snap: bool = True) -> np.ndarray:
     """A frame's mask from the previous one carried into it (h, w) bool, the frame (h, w, 3) at working size
-    and its automatic mask (full size, or None); without ``snap``, no GrabCut (frame 0's mask is GrabCut's)."""
+    and its automatic mask (full size, or None); without ``snap``, no GrabCut and no frame needed (frame 0's
+    mask is GrabCut's)."""
     if automatic is not None:
         found = _restricted(cv2.resize(automatic.astype(np.float32), size, interpolation=cv2.INTER_AREA) >= 0.5,
                             carried)
