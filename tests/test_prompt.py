@@ -165,3 +165,40 @@ def test_the_command_line_refuses_bad_target_prompts(tmp_path, prior_file, capsy
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: ") and message in err[0], err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("motion, seed", [("inplane", 0), ("oscillation", 1)])
+def test_a_click_on_a_turning_box_keeps_all_of_it(motion, seed):
+    """The faces of one box move by different homographies, but they meet at its creases: not two objects."""
+    from marionette.synthetic import make_scene
+
+    scene = make_scene(motion, seed=seed, num_frames=6, size=(W, H))
+    depth = cv2.distanceTransform(scene.masks[0].astype(np.uint8), cv2.DIST_L2, 5)
+    y, x = np.unravel_index(np.argmax(depth), depth.shape)
+    masks = prompted_masks(scene.frames, Prompt(points=((float(x), float(y)),)))
+    assert iou(masks[0], scene.masks[0]) > 0.9
+
+
+def touching_squares(t):
+    """Frame ``t`` (H, W) grey of two textured squares side by side, the left one sliding down and the right one
+    up by 2 px a frame, and their masks."""
+    rng = np.random.default_rng(1)
+    texture = cv2.GaussianBlur(rng.uniform(0, 255, (60, 60)).astype(np.float32), (0, 0), 1.5)
+    grey = np.full((H, W), 128.0, np.float32)
+    left, right = np.zeros((H, W), bool), np.zeros((H, W), bool)
+    grey[25 + 2 * t:85 + 2 * t, 20:80] = texture
+    left[25 + 2 * t:85 + 2 * t, 20:80] = True
+    grey[35 - 2 * t:95 - 2 * t, 80:140] = texture[::-1]
+    right[35 - 2 * t:95 - 2 * t, 80:140] = True
+    return grey.astype(np.uint8), left, right
+
+
+def test_a_click_takes_one_of_two_touching_objects_that_move_apart():
+    from marionette.source.prompted import _moving_with
+
+    grey = np.stack([touching_squares(t)[0] for t in range(5)])
+    _, left, right = touching_squares(0)
+    both = left | right
+    assert iou(_moving_with(both, ((50.0, 55.0),), grey), left) > 0.85
+    assert iou(_moving_with(both, ((110.0, 65.0),), grey), right) > 0.85
+    assert _moving_with(left, ((50.0, 55.0),), grey).sum() == left.sum()  # one object alone stays whole
