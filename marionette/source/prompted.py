@@ -45,8 +45,8 @@ _MIN_FLOW = 1.5
 _AGREE_FLOW = 0.25
 _MIN_SHARE, _MAX_SHARE = 0.05, 0.9
 #: ... and the rest is another object when its motion parts from the points' by this many times the agreement
-#: all along the seam (10th percentile). Measured on frame 0: the creases of single synthetic boxes part by 0.1-2.6
-#: times, the car of davis_car-shadow from its shadow by 4.3, two synthetic boxes that touch by 11.
+#: all along the seam (10th percentile). Measured on frame 0: the faces of single synthetic boxes part by 0.45-4.2
+#: times, the car of davis_car-shadow by 4.3, two synthetic boxes that touch by 11-14.
 _SEPARATE = 6.0
 #: A frame's mask reaches at most this many ``reach`` beyond the previous one carried into it.
 _GROWTH = 3
