@@ -113,8 +113,7 @@ def test_model_is_loaded_once(monkeypatch):
     assert default_model() is default_model()
 
 
-
-def test_release_frees_the_session_and_the_next_prediction_is_the_same(monkeypatch):
+def test_release_frees_the_session_and_the_next_prediction_is_the_same():
     img, _ = scene(H=64, W=64)
     model = SalientModel()
     first = model.predict(img)
@@ -133,7 +132,6 @@ def test_the_default_model_holds_no_session_after_one_image_or_a_video(monkeypat
 
     shared = SalientModel()
     monkeypatch.setattr("marionette.segment._u2net.default_model", lambda: shared)
-    monkeypatch.setattr("marionette.source.foreground.default_model", lambda: shared)
     img, _ = scene(H=64, W=64)
     salient_mask(img)
     assert shared._session is None
@@ -146,6 +144,7 @@ def test_the_default_model_holds_no_session_after_one_image_or_a_video(monkeypat
     salient_mask(img, model=mine)
     auto_masks(frames, model=mine)
     assert mine._session is not None
+
 
 def test_bad_inputs_are_refused(model):
     img, truth = scene(H=64, W=64)

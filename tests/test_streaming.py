@@ -115,12 +115,11 @@ def test_streamed_extraction_matches_in_memory(clip):
 def test_streamed_foreground_matches_in_memory(clip, monkeypatch):
     _, root = clip
     model = SalientModel(threads=1)
-    monkeypatch.setattr("marionette.source.foreground.default_model", lambda: model)
+    monkeypatch.setattr("marionette.segment._u2net.default_model", lambda: model)
     short = read_video(root / "clip.mp4", end=8, max_side=120)
     lazy = open_video(root / "clip.mp4", end=8, max_side=120)
     k = pipeline.source_intrinsics(*short.size)
     _assert_same_prior(extract_prior(lazy.frames, None, k, short.fps), extract_prior(short.frames, None, k, short.fps))
-
 
 
 def test_streamed_prompted_masks_match_in_memory(clip):

@@ -13,8 +13,10 @@ Images are RGB ``uint8`` of shape (H, W, 3).
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
+from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
@@ -23,7 +25,7 @@ import numpy as np
 from ..errors import InputError
 from ._grabcut import check_image, keep_main_object
 
-__all__ = ["MODEL_PATH", "SalientModel", "default_model", "predict_raw", "salient_mask"]
+__all__ = ["MODEL_PATH", "SalientModel", "default_model", "model_in_use", "predict_raw", "salient_mask"]
 
 MODEL_PATH = Path(__file__).parent / "models" / "u2netp.onnx"
 
@@ -103,20 +105,30 @@ class SalientModel:
 
 @functools.cache
 def default_model() -> SalientModel:
-    """The packaged U²-Netp, shared so that its session is created once per process."""
+    """The packaged U²-Netp, one object per process; its session is created when a batch of images needs it
+    and released after (:func:`model_in_use`)."""
     return SalientModel()
 
 
-def predict_raw(image: np.ndarray, model: SalientModel | None = None) -> np.ndarray:
-    """(H, W, 3) uint8 RGB image → (H, W) float32 raw probabilities of ``model``, or of the default model,
-    whose session is then released (for one image its memory arena is not worth keeping)."""
+@contextlib.contextmanager
+def model_in_use(model: SalientModel | None) -> Iterator[SalientModel]:
+    """``model``, or the default model, whose session is released on leaving (its memory arena is not worth
+    keeping once a batch of images is done); a model passed in is the caller's to keep."""
     if model is not None:
-        return model.predict(image, normalize=False)
+        yield model
+        return
     model = default_model()
     try:
-        return model.predict(image, normalize=False)
+        yield model
     finally:
         model.release()
+
+
+def predict_raw(image: np.ndarray, model: SalientModel | None = None) -> np.ndarray:
+    """(H, W, 3) uint8 RGB image → (H, W) float32 raw probabilities of ``model`` (by default the packaged one,
+    released after)."""
+    with model_in_use(model) as used:
+        return used.predict(image, normalize=False)
 
 
 def salient_mask(image: np.ndarray, *, threshold: float = 0.5, keep_fraction: float = 0.2,

@@ -65,7 +65,7 @@ from ..errors import InputError
 from ..io.video import PackedMasks, VideoFrames, check_frames
 from ..segment import SalientModel, refine_with_grabcut
 from ..segment._grabcut import keep_main_object
-from ..segment._u2net import default_model
+from ..segment._u2net import model_in_use
 
 __all__ = ["ForegroundOptions", "auto_masks"]
 
@@ -357,8 +357,6 @@ def auto_masks(frames: np.ndarray | VideoFrames, *, key_every: int = 8, options:
     if isinstance(key_every, bool) or int(key_every) != key_every or key_every < 1:
         raise InputError(f"foreground: key_every must be an integer >= 1, got {key_every!r}")
     options = options or ForegroundOptions()
-    release = model is None
-    model = model or default_model()
     T, H, W = frames.shape[:3]
     scale = min(1.0, options.work_side / max(H, W))
     w, h = max(16, round(W * scale)), max(16, round(H * scale))
@@ -373,17 +371,14 @@ def auto_masks(frames: np.ndarray | VideoFrames, *, key_every: int = 8, options:
 
     grey = np.empty((T, h, w), np.uint8)
     salient_keys = {}
-    try:
+    with model_in_use(model) as salient:  # nothing after needs its session's memory arena (0.5 GB)
         for t in range(T):
             frame = frames[t]
             grey[t] = cv2.resize(cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY), (w, h), interpolation=cv2.INTER_AREA)
             if t in keys:
-                prob = model.predict(frame, normalize=False)
+                prob = salient.predict(frame, normalize=False)
                 salient_keys[t] = cv2.resize(prob, (w, h), interpolation=cv2.INTER_AREA)
             advance()
-    finally:
-        if release:  # nothing after needs its session's memory arena (0.5 GB)
-            model.release()
     keep = max(_FLOW_CACHE_BYTES // (8 * h * w), key_every + 2 * max(options.motion_window, options.union_radius) + 2)
     fwd = _Flows(grey, forward=True, keep=keep)  # flow t → t+1, in frame t's grid
     bwd = _Flows(grey, forward=False, keep=keep)  # flow t+1 → t, in frame t+1's grid
