@@ -33,6 +33,8 @@ VIDEOS = ROOT.parent / "shared" / "data" / "videos"
 CLIPS = ("davis_car-turn", "davis_car-shadow", "davis_train")
 BOX_MOTIONS = ("inplane", "outofplane", "oscillation", "translation")
 OUT = ROOT / "docs" / "benchmarks" / "prompt.md"
+#: A user's prompt on cotracker_backpack's first frame: a click on the bag, and a point on the arm holding it.
+BAG, ARM = (240.0, 200.0), (190.0, 55.0)
 
 
 def iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -69,15 +71,40 @@ def two_movers() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return frames, first, second
 
 
-def sheet(frames: np.ndarray, masks: np.ndarray, truth: np.ndarray, point, path: Path, count: int = 5) -> None:
+def held_box(seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A synthetic box swinging in front of a still, orange "holder" that it overlaps on frame 0 (the arm
+    holding a bag). (T, H, W, 3) frames, the box's masks, and the holder's frame-0 mask."""
+    scene = make_scene("oscillation", num_frames=24, size=(320, 240), seed=seed)
+    first = scene.masks[0]
+    ys, xs = np.nonzero(first)
+    rng = np.random.default_rng(seed)
+    texture = cv2.GaussianBlur(rng.uniform(0, 1, (240, 320, 3)).astype(np.float32), (0, 0), 2)
+    texture = texture * [80, 60, 40] + [160, 90, 30]
+    holder = np.zeros((240, 320), bool)
+    right = int(xs.mean())
+    holder[max(0, ys.min() - 30):ys.max() + 30, max(0, right - 110):right] = True
+    frames = scene.frames.copy()
+    for t in range(len(frames)):
+        shown = holder & ~scene.masks[t]
+        frames[t][shown] = texture[shown].astype(np.uint8)
+    return frames, scene.masks, holder & ~first
+
+
+def sheet(frames: np.ndarray, masks: np.ndarray, truth: np.ndarray | None, point, path: Path, count: int = 5,
+          exclude=()) -> None:
+    """Frames with the prompted masks (green), the true outline (red; none without truth), the click (yellow
+    cross) and excluded points (red cross) on frame 0."""
     tiles = []
     for t in np.linspace(0, len(frames) - 1, count).round().astype(int):
         tile = frames[t].copy()
         tile[masks[t]] = (0.5 * tile[masks[t]] + [0, 127, 0]).astype(np.uint8)
-        contours, _ = cv2.findContours(truth[t].astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-        cv2.drawContours(tile, contours, -1, (255, 0, 0), 2)
+        if truth is not None:
+            contours, _ = cv2.findContours(truth[t].astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+            cv2.drawContours(tile, contours, -1, (255, 0, 0), 2)
         if t == 0:
             cv2.drawMarker(tile, (round(point[0]), round(point[1])), (255, 255, 0), cv2.MARKER_CROSS, 24, 3)
+            for x, y in exclude:
+                cv2.drawMarker(tile, (round(x), round(y)), (255, 0, 0), cv2.MARKER_TILTED_CROSS, 20, 3)
         tiles.append(cv2.resize(tile, (round(200 * tile.shape[1] / tile.shape[0]), 200), interpolation=cv2.INTER_AREA))
     cv2.imwrite(str(path), cv2.cvtColor(np.concatenate(tiles, axis=1), cv2.COLOR_RGB2BGR))
 
@@ -137,6 +164,32 @@ def main() -> None:
         rows.append((f"synthetic box, {motion} (3 seeds, mean)", "one click", scores[:, 0].mean(),
                      scores.mean(), scores.min(), scores[:, -1].mean(), seconds / 3, scores.shape[1]))
         print(rows[-1], flush=True)
+    for label, excluding in (("one click", False), ("one click, one point excluded on the holder", True)):
+        scores, seconds = [], 0.0
+        for seed in range(3):
+            frames, truth, holder = held_box(seed)
+            prompt = Prompt(points=(click(truth[0]),), exclude=(click(holder),) if excluding else ())
+            start = time.perf_counter()
+            masks = prompted_masks(frames, prompt)
+            seconds += time.perf_counter() - start
+            scores.append(iou(masks, truth))
+            if seed == 0 and excluding:
+                sheet(frames, masks, truth, prompt.points[0], args.sheets / "prompt_held_box.png",
+                      exclude=prompt.exclude)
+        scores = np.array(scores)
+        rows.append(("synthetic box held (3 seeds, mean)", label, scores[:, 0].mean(), scores.mean(), scores.min(),
+                     scores[:, -1].mean(), seconds / 3, scores.shape[1]))
+        print(rows[-1], flush=True)
+    backpack = VIDEOS / "cotracker_backpack" / "source.mp4"
+    held_seconds = {}
+    if backpack.is_file():  # no true masks: a picture, one click on the bag against the click and the arm excluded
+        frames = read_video(backpack).frames
+        for name, prompt in (("click", Prompt(points=(BAG,))), ("exclude", Prompt(points=(BAG,), exclude=(ARM,)))):
+            start = time.perf_counter()
+            masks = prompted_masks(frames, prompt)
+            held_seconds[name] = time.perf_counter() - start
+            sheet(frames, masks, None, BAG, args.sheets / f"prompt_backpack_{name}.png", count=6,
+                  exclude=prompt.exclude)
     lines = ["# Choosing the object with a click", "",
              f"`python benchmarks/bench_prompt.py` on {platform.machine()}, Python {platform.python_version()}. "
              "Frame 0's prompt comes from its DAVIS mask as a user would give it: one click at the point deepest "
@@ -158,7 +211,21 @@ def main() -> None:
                      f"{count} |")
     lines += ["", "Contact sheets (the click as a cross on frame 0; prompted mask green, DAVIS outline red): "
               + ", ".join(f"[{c.split('_', 1)[-1]}](../images/prompt_{c.split('_', 1)[-1]}.png)" for c in CLIPS)
-              + ", [two movers, the sliding box clicked](../images/prompt_two_movers.png)."]
+              + ", [two movers, the sliding box clicked](../images/prompt_two_movers.png), [the held box, seed 0, "
+              "with the holder excluded](../images/prompt_held_box.png)."]
+    lines += ["", "The held box: a box swinging in front of a still, textured orange rectangle it overlaps on frame 0 "
+              "(exact masks of the box). One click at the box; then the same click and one point excluded at the "
+              "holder's deepest point. Where the saliency takes box and holder as one region, the excluded point "
+              "splits it at the colour edges between them (a random walk from each pixel, "
+              "`segment.prompt._split_at_exclusions`), and the side split off is carried along the flow and kept "
+              "out of every frame; where the holder is not salient on frame 0, nothing is split off and the "
+              "automatic masks, which take what lies within reach of the motion, may still let part of it in."]
+    if held_seconds:
+        lines += ["", f"`cotracker_backpack` (no true masks): one click on the bag ({BAG[0]:g},{BAG[1]:g}) keeps the "
+                  "person holding it, one salient region with it ([sheet](../images/prompt_backpack_click.png), "
+                  f"{held_seconds['click']:.1f} s); the same click and one point excluded on the arm "
+                  f"({ARM[0]:g},{ARM[1]:g}) keep the bag alone in every frame "
+                  f"([sheet](../images/prompt_backpack_exclude.png), {held_seconds['exclude']:.1f} s)."]
     OUT.write_text("\n".join(lines) + "\n")
     print(OUT.read_text())
 

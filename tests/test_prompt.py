@@ -48,6 +48,37 @@ def test_an_excluded_point_takes_out_what_the_box_took_in_wrongly():
     assert iou(fixed, disc) > 0.9
 
 
+def touching_objects(shift=0, half=22):
+    """(H, W, 3) image: a red disc and a blue square (``half`` its half side) that overlap (one salient region),
+    and their masks; ``shift`` moves both right by that many pixels."""
+    rng = np.random.default_rng(0)
+    image = (120 + rng.normal(0, 6, (H, W, 3))).clip(0, 255).astype(np.uint8)
+    yy, xx = np.mgrid[:H, :W]
+    disc = (xx - 55 - shift) ** 2 + (yy - 60) ** 2 < 25**2
+    square = (np.abs(xx - 78 - half - shift) < half) & (np.abs(yy - 60) < half) & ~disc
+    image[disc] = (210, 40, 30)
+    image[square] = (30, 60, 200)
+    return image, disc, square
+
+
+def test_an_excluded_point_splits_off_what_touches_the_clicked_object():
+    """A bag and the hand holding it: one salient region, which a click keeps whole; a point excluded on
+    the other thing splits it at their boundary."""
+    image, disc, square = touching_objects()
+    whole = prompted_mask(image, Prompt(points=((50, 60),)))
+    assert whole[disc].mean() > 0.9 and whole[square].mean() > 0.9
+    assert iou(prompted_mask(image, Prompt(points=((50, 60),), exclude=((105, 60),))), disc) > 0.95
+    assert iou(prompted_mask(image, Prompt(points=((105, 60),), exclude=((50, 60),))), square) > 0.95
+
+
+def test_what_an_excluded_point_splits_off_stays_out_along_the_video():
+    """The automatic masks take both moving things as one (and would agree with the disc followed alone):
+    the square, excluded on frame 0, stays out of every frame."""
+    frames, discs = zip(*[touching_objects(shift=2 * t, half=15)[:2] for t in range(6)])
+    masks = prompted_masks(np.stack(frames), Prompt(points=((50, 60),), exclude=((95, 60),)))
+    assert min(iou(m, d) for m, d in zip(masks, discs)) > 0.9
+
+
 @pytest.mark.parametrize("prompt, message", [
     (Prompt(points=((200, 10),)), "outside the 160x120"),
     (Prompt(box=(10, 10, 10, 50)), "has no area"),
@@ -202,3 +233,24 @@ def test_a_click_takes_one_of_two_touching_objects_that_move_apart():
     assert iou(_moving_with(both, ((50.0, 55.0),), grey), left) > 0.85
     assert iou(_moving_with(both, ((110.0, 65.0),), grey), right) > 0.85
     assert _moving_with(left, ((50.0, 55.0),), grey).sum() == left.sum()  # one object alone stays whole
+
+
+def test_a_followed_mask_does_not_spill_past_an_automatic_mask_that_holds_it():
+    """The automatic mask takes the object with what holds it (so the two disagree); the carried mask, snapped to
+    the frame's edges, would spill onto a background of the object's colour, and stays within a reach of it."""
+    from marionette.source.prompted import _follow
+
+    rng = np.random.default_rng(1)
+    image = (110 + rng.normal(0, 5, (80, 120, 3))).clip(0, 255).astype(np.uint8)
+    thing = np.zeros((80, 120), bool)
+    thing[20:60, 50:90] = True
+    holder = np.zeros_like(thing)
+    holder[15:65, 10:50] = True
+    alike = np.zeros_like(thing)  # background of the thing's colour, which the previous frame took in
+    alike[20:60, 90:98] = True
+    image[thing | alike] = (60, 90, 200)
+    image[holder] = (20, 20, 20)
+    reach = 4
+    followed = _follow(thing | alike, image, thing | holder, (120, 80), reach)
+    assert followed[thing].all()
+    assert not followed[:, 90 + reach + 1:].any()

@@ -21,16 +21,18 @@ follows from it in three steps:
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from skimage.segmentation import random_walker
 
 from ..errors import InputError
 from ._grabcut import check_image, grabcut_labels, keep_main_object
 from ._u2net import SalientModel, predict_raw
 
-__all__ = ["Prompt", "prompted_mask"]
+__all__ = ["Prompt", "prompted_mask", "prompted_regions"]
 
 #: Radius of a point's sure disc, as a share of the image's diagonal.
 _POINT_RADIUS = 0.01
@@ -40,6 +42,10 @@ _SEED_RADIUS = 0.04
 _BOX_MARGIN = 0.15
 #: A salient component counts as clicked within this share of the diagonal from a point.
 _TOUCH = 0.02
+#: A salient region shared by points and excluded points is split at most this long side (pixels); and how
+#: strongly colour edges stop the random walk (scikit-image's default).
+_SPLIT_SIDE = 512
+_SPLIT_BETA = 130.0
 
 
 @dataclass(frozen=True)
@@ -131,11 +137,53 @@ def _saliency(image: np.ndarray, prompt: Prompt, model: SalientModel | None) -> 
     return prob
 
 
+def _split_at_exclusions(image: np.ndarray, salient: np.ndarray, points, exclude, radius: int) -> np.ndarray:
+    """(H, W) bool: the share of ``salient`` (H, W) bool that belongs with the ``points`` rather than with the
+    ``exclude`` points lying on it (all of it when none does), split by a random walk over the image (H, W, 3)."""
+    h, w = salient.shape
+    scale = min(1.0, _SPLIT_SIDE / max(h, w))
+    size = (max(8, round(w * scale)), max(8, round(h * scale)))
+
+    def small(array: np.ndarray, interpolation: int) -> np.ndarray:
+        return cv2.resize(array, size, interpolation=interpolation) if size != (w, h) else array
+
+    region = small(salient.astype(np.uint8), cv2.INTER_NEAREST).astype(bool)
+    seed_radius = max(1, round(radius * scale))
+    fx, fy = size[0] / w, size[1] / h
+    ours = _discs(region.shape, [((x + 0.5) * fx - 0.5, (y + 0.5) * fy - 0.5) for x, y in points], seed_radius)
+    theirs = _discs(region.shape, [((x + 0.5) * fx - 0.5, (y + 0.5) * fy - 0.5) for x, y in exclude], seed_radius)
+    theirs &= region & ~ours
+    if not theirs.any():
+        return salient
+    labels = np.where(region | ours, 0, -1).astype(np.int32)  # -1: outside the walk
+    labels[ours] = 1
+    labels[theirs] = 2
+    colour = small(image, cv2.INTER_AREA).astype(np.float64) / 255.0
+    with warnings.catch_warnings():  # probabilities a hair outside [0, 1] do not change which side is likelier
+        warnings.filterwarnings("ignore", "The probability range is outside", UserWarning)
+        side = random_walker(colour, labels, beta=_SPLIT_BETA, mode="cg_j", tol=1e-5, channel_axis=-1)
+    mine = (side == 1).astype(np.float32)
+    if size != (w, h):
+        mine = cv2.resize(mine, (w, h), interpolation=cv2.INTER_LINEAR)
+    return salient & (mine >= 0.5)
+
+
 def prompted_mask(image: np.ndarray, prompt: Prompt, *, model: SalientModel | None = None,
                   iterations: int = 5) -> np.ndarray:
     """(H, W, 3) uint8 RGB image and a prompt in its pixels → (H, W) bool mask of the object prompted.
 
     Raises :class:`InputError` on a bad prompt (see :meth:`Prompt.check`) or when it selects nothing.
+    """
+    return prompted_regions(image, prompt, model=model, iterations=iterations)[0]
+
+
+def prompted_regions(image: np.ndarray, prompt: Prompt, *, model: SalientModel | None = None,
+                     iterations: int = 5) -> tuple[np.ndarray, np.ndarray]:
+    """The object prompted and what the excluded points put out: two disjoint (H, W) bool masks.
+
+    The second holds the excluded points' discs, the salient things they lie on and, of a salient region
+    shared with the points, the side split off (empty without excluded points). Raises as
+    :func:`prompted_mask`.
     """
     check_image(image)
     h, w = image.shape[:2]
@@ -152,6 +200,10 @@ def prompted_mask(image: np.ndarray, prompt: Prompt, *, model: SalientModel | No
     if prompt.points:  # keep the salient components a point is on (or next to)
         salient = _components_touching(salient, near_points)
     salient &= ~rejected
+    split_off = np.zeros((h, w), bool)
+    if prompt.points and prompt.exclude:
+        kept = _split_at_exclusions(image, salient, prompt.points, prompt.exclude, radius)
+        split_off, salient = salient & ~kept, kept
     inside = np.ones((h, w), bool)
     if prompt.box is not None:
         x0, y0, x1, y1 = _box_pixels(prompt.box, w, h)
@@ -163,7 +215,9 @@ def prompted_mask(image: np.ndarray, prompt: Prompt, *, model: SalientModel | No
     labels[~inside] = cv2.GC_BGD
     labels[_discs((h, w), prompt.points, radius)] = cv2.GC_FGD
     excluded = _discs((h, w), prompt.exclude, radius)
-    labels[excluded | rejected] = cv2.GC_BGD
+    # the split-off side is background but for a band along the split, where GrabCut may still move it
+    band = cv2.dilate(salient.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (4 * radius + 1,) * 2))
+    labels[excluded | rejected | (split_off & ~band.astype(bool))] = cv2.GC_BGD
     if prompt.box is not None and not (labels == cv2.GC_PR_FGD).any() and not prompt.points:
         labels[inside & ~excluded] = cv2.GC_PR_FGD  # nothing salient in the box: the box itself starts GrabCut
     if (labels == cv2.GC_BGD).all() or not np.isin(labels, (cv2.GC_BGD, cv2.GC_PR_BGD)).any():
@@ -173,4 +227,5 @@ def prompted_mask(image: np.ndarray, prompt: Prompt, *, model: SalientModel | No
         mask = _components_touching(mask, _discs((h, w), prompt.points, radius))
     if not mask.any():
         raise InputError("the prompt selects nothing: no object found at the points or in the box given")
-    return keep_main_object(mask, keep_fraction=0.0 if prompt.points else 0.2)
+    mask = keep_main_object(mask, keep_fraction=0.0 if prompt.points else 0.2)
+    return mask, (excluded | rejected | split_off) & ~mask

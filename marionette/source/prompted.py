@@ -1,7 +1,7 @@
 """Source masks from a prompt on the first frame: the clicked object followed through the video.
 
 The prompt (points, a box, excluded points; :class:`~marionette.segment.prompt.Prompt`)
-gives frame 0's mask (:func:`~marionette.segment.prompt.prompted_mask`). Each
+gives frame 0's mask (:func:`~marionette.segment.prompt.prompted_regions`). Each
 next frame starts from the previous mask carried along the dense optical
 flow (DIS, as :mod:`.foreground` computes it). Carried masks drift (an
 object that turns or comes closer outgrows them), so each frame is
@@ -12,7 +12,12 @@ the object when they agree with it (IoU ``_AGREE``). Where they do not (the
 automatic choice took something else, or nothing), the carried mask's
 boundary is snapped to the frame's colour edges by GrabCut (the carried
 mask, blurred, is its soft prior: it may move the boundary a few pixels,
-not jump to another object), and kept as carried if GrabCut strays too.
+not jump to another object), and kept as carried if GrabCut strays too;
+an automatic mask that holds the carried one with more (the arm holding a
+bag) still bounds the snapped mask, so it does not spread frame by frame
+over a background of the object's colours. What excluded points put out of
+frame 0 (:func:`~marionette.segment.prompt.prompted_regions`) is carried
+along the flow as well and kept out of every frame.
 Work is at the working size of
 :class:`~marionette.source.foreground.ForegroundOptions`.
 """
@@ -28,7 +33,7 @@ from ..errors import InputError
 from ..io.video import PackedMasks, VideoFrames, check_frames
 from ..segment import SalientModel
 from ..segment._grabcut import keep_main_object
-from ..segment.prompt import Prompt, prompted_mask
+from ..segment.prompt import Prompt, prompted_regions
 from .foreground import ForegroundOptions, _Flows, _pixel_grid, _snap_to_edges, _warp, auto_masks
 
 __all__ = ["prompted_masks"]
@@ -50,6 +55,9 @@ _MIN_SHARE, _MAX_SHARE = 0.05, 0.9
 _SEPARATE = 6.0
 #: A frame's mask reaches at most this many ``reach`` beyond the previous one carried into it.
 _GROWTH = 3
+#: An automatic mask that covers this share of the carried one holds the object (with more, or it would agree):
+#: the snapped mask stays within a ``reach`` of it, not spilling onto a background of the object's colours.
+_COVERED = 0.9
 
 
 def _iou(a: np.ndarray, b: np.ndarray) -> float:
@@ -85,7 +93,9 @@ def prompted_masks(frames: np.ndarray | VideoFrames, prompt: Prompt, *, options:
         return cv2.resize(frames[t], (w, h), interpolation=cv2.INTER_AREA) if (w, h) != (W, H) else frames[t]
 
     scaled = prompt.scaled(w / W)
-    first = prompted_mask(small(0), scaled, model=model)  # a bad prompt fails before the long work
+    # a bad prompt fails before the long work
+    first, away = prompted_regions(small(0), scaled, model=model)
+    away = away if away.any() else None  # what the excluded points put out stays out, carried along the flow
     total = 5 * T - 2  # auto_masks reports 4 T - 2 steps, then one per frame here
 
     def report(done: int, _: int) -> None:
@@ -105,7 +115,7 @@ def prompted_masks(frames: np.ndarray | VideoFrames, prompt: Prompt, *, options:
     bwd = _Flows(grey, forward=False, keep=2)  # flow t+1 → t, in frame t+1's grid
     reach = max(1, round(options.reach * max(w, h)))
     masks = PackedMasks(T, h, w)
-    masks[0] = first if automatic is None else _follow(first, None, automatic[0], (w, h), reach, snap=False)
+    masks[0] = first if automatic is None else _follow(first, None, automatic[0], (w, h), reach, away, snap=False)
     out = PackedMasks(T, H, W) if packed else np.empty((T, H, W), bool)
     for t in range(T):
         if t:
@@ -113,7 +123,9 @@ def prompted_masks(frames: np.ndarray | VideoFrames, prompt: Prompt, *, options:
             if not carried.any():
                 raise InputError(f"the prompted object is lost at frame {t} (it left the picture?); "
                                  "pass --masks DIR")
-            masks[t] = _follow(carried, small(t), None if automatic is None else automatic[t], (w, h), reach)
+            if away is not None:
+                away = _warp(away.astype(np.float32), bwd[t - 1]) >= 0.5
+            masks[t] = _follow(carried, small(t), None if automatic is None else automatic[t], (w, h), reach, away)
         out[t] = cv2.resize(masks[t].astype(np.float32), (W, H), interpolation=cv2.INTER_LINEAR) >= 0.5
         report(4 * T - 2 + t + 1, total)
     return out
@@ -191,19 +203,33 @@ def _moved(points: np.ndarray, homography: np.ndarray) -> np.ndarray:
 
 
 def _follow(carried: np.ndarray, image: np.ndarray | None, automatic: np.ndarray | None, size: tuple[int, int],
-            reach: int, snap: bool = True) -> np.ndarray:
+            reach: int, away: np.ndarray | None = None, snap: bool = True) -> np.ndarray:
     """A frame's mask from the previous one carried into it (h, w) bool, the frame (h, w, 3) at working size
-    and its automatic mask (full size, or None); without ``snap``, no GrabCut and no frame needed (frame 0's
-    mask is GrabCut's)."""
+    and its automatic mask (full size, or None), never on ``away`` (h, w) bool (what excluded points put out);
+    without ``snap``, no GrabCut and no frame needed (frame 0's mask is GrabCut's)."""
+    bound = None
+    if away is not None:
+        carried = carried & ~away
     if automatic is not None:
-        found = _restricted(cv2.resize(automatic.astype(np.float32), size, interpolation=cv2.INTER_AREA) >= 0.5,
-                            carried)
+        automatic = cv2.resize(automatic.astype(np.float32), size, interpolation=cv2.INTER_AREA) >= 0.5
+        if away is not None:
+            automatic &= ~away
+        found = _restricted(automatic, carried)
         # Not past a few reaches from the carried mask: an object touching it is not let in.
         disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * _GROWTH * reach + 1,) * 2)
         found &= cv2.dilate(carried.astype(np.uint8), disc).astype(bool)
         if _iou(found, carried) >= _AGREE:
             return found
+        # The automatic mask holds the object with more (the person holding it): the object stays within it
+        ring = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * reach + 1,) * 2)
+        near = cv2.dilate(automatic.astype(np.uint8), ring).astype(bool)
+        if (carried & near).sum() >= _COVERED * carried.sum():
+            bound = near
     if not snap:
         return carried
     snapped = _snap_to_edges(image, carried, reach)
+    if bound is not None:
+        snapped &= bound
+    if away is not None:
+        snapped &= ~away
     return snapped if _iou(snapped, carried) >= _AGREE else carried
