@@ -45,8 +45,9 @@ def main() -> None:
     clip = load_clip(args.clip, args.cache)
     frames, masks = clip["frames"], clip["masks"]
     t_count, h, w = frames.shape[:3]
+    # the poses as the camera filmed them: the alignment compares renders from the source camera with the frames
     prior = extract_prior(frames, masks, pipeline.source_intrinsics(w, h), clip["fps"],
-                          options=ExtractOptions(parts=CASES[args.clip][3]))
+                          options=ExtractOptions(parts=CASES[args.clip][3])).motion_in("filmed")
     even, odd = list(range(0, t_count, 2)), list(range(1, t_count, 2))
 
     def score(rec, poses_prior, indices) -> float:

@@ -8,10 +8,11 @@ import pytest
 
 from marionette import cli
 from marionette.errors import InputError
+from marionette.eval.metrics import masked_psnr
 from marionette.gaussians import Gaussians
 from marionette.io import read_ply, read_ply_property, write_image, write_ply, write_prior
-from marionette.eval.metrics import masked_psnr
-from marionette.reconstruct import ReconstructOptions, Reconstruction, reconstruct_object
+from marionette.prior import CAMERA_EXTRA, SpatPrior
+from marionette.reconstruct import Reconstruction, ReconstructOptions, reconstruct_object
 from marionette.reconstruct._init import initial_gaussians
 from marionette.synthetic import make_scene
 
@@ -65,6 +66,27 @@ def test_the_half_resolution_start_does_as_well_as_full_resolution_steps(scene, 
     fine = reconstruct_object(scene.frames, scene.masks, prior, frames_used=EVEN,
                               options=ReconstructOptions(iterations=400, coarse_fraction=0.0))
     assert _held_out(rec, scene, prior) > max(HELD_OUT_PSNR, _held_out(fine, scene, prior) - 1.0)
+
+
+def test_a_prior_without_the_camera_motion_is_fitted_as_the_camera_filmed_it(scene, fitted):
+    """Extraction keeps the object's motion in the world and the camera's own apart: frame t was filmed by
+    camera C_t. Fitted from the world poses and those cameras, the object reproduces the frames as the fit
+    from the filmed poses does."""
+    filmed, rec = fitted
+    angles = np.radians(2.0) * np.arange(T)  # the camera pans 2° a frame and slides sideways
+    cameras = np.tile(np.eye(4), (T, 1, 1))
+    cameras[:, 0, 0] = cameras[:, 2, 2] = np.cos(angles)
+    cameras[:, 0, 2], cameras[:, 2, 0] = np.sin(angles), -np.sin(angles)
+    cameras[:, 0, 3] = 0.03 * np.arange(T)
+    to_world = np.linalg.inv(cameras)
+    centroids = np.einsum("tij,ktj->kti", to_world[:, :3, :3], filmed.centroids) + to_world[:, :3, 3]
+    world = SpatPrior.from_poses(to_world[None] @ filmed.poses, centroids, filmed.radii, fps=filmed.fps,
+                                 image_size=tuple(filmed.image_size), intrinsics=filmed.intrinsics,
+                                 extras={CAMERA_EXTRA: cameras})
+    assert np.allclose(world.motion_in("filmed").poses, filmed.poses, atol=1e-9)
+    fit = reconstruct_object(scene.frames, scene.masks, world, frames_used=EVEN,
+                             options=ReconstructOptions(iterations=400))
+    assert abs(_held_out(fit, scene, world) - _held_out(rec, scene, filmed)) < 1.0
 
 
 def test_masked_psnr_known_values():

@@ -23,7 +23,8 @@ shading with the direction it is seen from, which a constant colour can only
 average (synthetic scenes, held-out masked PSNR +0.7 to +1.6 dB on the turning
 ones; ``benchmarks/bench_reconstruct.py``). The degree-1 terms step at a
 twentieth of the base colour's rate, as 3DGS's do. Those colours are an
-albedo, shaded by one light fixed in the world through a normal per Gaussian
+albedo, shaded by one light fixed relative to the source camera (the world,
+when the camera stands still) through a normal per Gaussian
 (:mod:`.shading`): turning about the viewing direction changes an object's
 shading but not the direction it is seen from, which SH alone cannot follow.
 """
@@ -133,7 +134,7 @@ class ReconstructOptions:
     prune_opacity : float
         Gaussians below this opacity are removed.
     shading : bool
-        Fit a normal per Gaussian and one light fixed in the world (:mod:`.shading`), so
+        Fit a normal per Gaussian and one light fixed relative to the camera (:mod:`.shading`), so
         the shading changes as the object's faces turn towards or away from the light.
     lr_normals, lr_light, lr_diffuse : float
         Adam steps of the normals, the light direction and the diffuse share's logit.
@@ -232,10 +233,12 @@ class Reconstruction:
         return ShadedTrajectory(means, rotations, self.parts, self.shading)
 
     def render_frame(self, prior: SpatPrior, t: int, camera: Camera | None = None) -> np.ndarray:
-        """(H, W, 3) float32 render of frame ``t`` on white, with the prior's camera by default."""
+        """(H, W, 3) float32 render of frame ``t`` on white, by default as the source camera filmed it (the
+        prior's intrinsics, and its own motion when extraction removed it): what was fitted to frame ``t``."""
         if camera is None:
             w, h = (int(v) for v in prior.image_size)
             camera = Camera(prior.intrinsics, np.eye(4), w, h)
+            prior = prior.motion_in("filmed")
         return render(self.at(prior, t), camera, (1.0, 1.0, 1.0)).image
 
 
@@ -437,9 +440,14 @@ def reconstruct_object(frames, masks, prior: SpatPrior, *, frames_used: Sequence
     Reconstruction
         Gaussians (N) at frame 0 in the prior's world frame, each Gaussian's
         part (N,), and the losses.
+
+    Each frame is fitted under the poses as the source camera filmed them: where extraction removed the
+    camera's own motion (``extras['camera_world_to_camera']``), it is put back (frame 0's camera is the
+    world, so the Gaussians are at frame 0 all the same). The light is fixed relative to the camera.
     """
     options.check()
     used = _check_inputs(frames, masks, prior, frames_used)
+    prior = prior.motion_in("filmed")
     visible = [t for t in used if np.asarray(masks[t]).any()]
     if not visible:
         raise InputError("the object is not visible (empty mask) in any of the frames to fit")
