@@ -700,6 +700,11 @@ def reconstruct(source: Annotated[Path, typer.Argument(help="Video file or folde
             where = " (half resolution)" if last <= coarse else ""
             session.reporter.detail(f"  loss over iterations {i * block + 1}-{last}{where}: {value:.5f}")
         session.reporter.detail(f"  loss at end: {losses['final']:.5f} ({losses['gaussians_final']} Gaussians)")
+        fit = result.quality.summary()
+        session.figures["fit"] = fit
+        session.reporter.detail(f"  fit over {len(result.quality.frames)} of its frames: silhouette IoU "
+                                f"{fit['silhouette_iou']:.3f} median ({fit['silhouette_iou_worst']:.3f} at frame "
+                                f"{fit['worst_frame']}), object pixels {fit['masked_psnr_db']:.1f} dB median")
         if result.shading is not None:
             light = result.shading.lighting
             session.figures.update(light_direction=[round(float(v), 4) for v in light.direction],

@@ -5,6 +5,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from marionette import cli
 from marionette.errors import InputError
@@ -87,6 +88,23 @@ def test_a_prior_without_the_camera_motion_is_fitted_as_the_camera_filmed_it(sce
     fit = reconstruct_object(scene.frames, scene.masks, world, frames_used=EVEN,
                              options=ReconstructOptions(iterations=400))
     assert abs(_held_out(fit, scene, world) - _held_out(rec, scene, filmed)) < 1.0
+
+
+def test_a_fit_under_poses_that_fit_no_rigid_object_says_so(scene, fitted):
+    """Under the exact poses the fit's silhouettes match the masks; under poses that turn the object about
+    at random, no rigid object explains the frames, and the fit warns."""
+    exact, rec = fitted
+    assert not rec.quality.poor and np.median(rec.quality.silhouette_iou) > 0.9
+    assert list(rec.quality.frames) == EVEN
+    turns = Rotation.from_rotvec(np.random.default_rng(0).normal(0, np.radians(40), (T, 3))).as_matrix()
+    turns[0] = np.eye(3)
+    poses = exact.poses.copy()
+    poses[:, :, :3, :3] = turns[None] @ poses[:, :, :3, :3]
+    wrong = SpatPrior.from_poses(poses, exact.centroids, exact.radii, fps=exact.fps,
+                                 image_size=tuple(exact.image_size), intrinsics=exact.intrinsics)
+    with pytest.warns(UserWarning, match="explains its frames poorly"):
+        bad = reconstruct_object(scene.frames, scene.masks, wrong, options=ReconstructOptions(iterations=100))
+    assert bad.quality.poor and bad.quality.summary()["silhouette_iou"] < 0.85
 
 
 def test_masked_psnr_known_values():

@@ -135,6 +135,7 @@ def eval_self(source: str | Path, masks: str | Path | None = None, output_dir: s
                           reporter=reporter)
     out.mkdir(exist_ok=True)
     files = {kind: out / name for kind, name in EVAL_SELF_OUTPUTS.items()}
+    fit = None  # how well the reconstruction explains the frames it was fitted to
     if target == "frame0":
         lifted = self_target(frames[0], mask_stack[0], prior)
         gaussians, camera = lifted.gaussians, lifted.camera
@@ -144,6 +145,7 @@ def eval_self(source: str | Path, masks: str | Path | None = None, output_dir: s
             rec = reconstruct_object(frames, mask_stack, prior, options=reconstruct_options, progress=progress)
         gaussians, camera = rec.gaussians, Camera(prior.intrinsics, np.eye(4), w, h)
         trajectory = rec.trajectory(prior)
+        fit = rec.quality.summary()
     pipeline.render_video(files["video"], gaussians, trajectory, camera, fps=video.fps, reporter=reporter)
     rendered = read_video(files["video"]).frames[:, :h, :w]  # as written: codec loss included
     reference = on_white(frames, mask_stack)
@@ -174,6 +176,7 @@ def eval_self(source: str | Path, masks: str | Path | None = None, output_dir: s
                     "frames masked onto white, whole frames",
         "camera_motion": prior.metadata.get("camera_motion"),
         "focal_px": float(prior.intrinsics[0, 0]), "focal": prior.metadata.get("focal"),
+        **({} if fit is None else {"reconstruction_fit": fit}),
     }
     if fidelity:
         with reporter.stage("motion fidelity", 1):

@@ -31,8 +31,9 @@ shading but not the direction it is seen from, which SH alone cannot follow.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -50,6 +51,7 @@ from ..trajectory import Trajectory
 from ._init import initial_gaussians, pose_gaussians
 from ._views import FitView, make_view
 from .posing import per_part
+from .quality import FitQuality, fit_quality
 from .shading import (
     Lighting,
     ShadedTrajectory,
@@ -207,6 +209,8 @@ class Reconstruction:
     frames_used : list of int, the fitting frames.
     shading : Shading or None
         Albedo, normals and light, when the fit modelled the shading.
+    quality : FitQuality or None
+        How well the fit explains the frames it was fitted to (silhouettes and colours, :mod:`.quality`).
     """
 
     gaussians: Gaussians
@@ -214,6 +218,7 @@ class Reconstruction:
     losses: dict = field(default_factory=dict)
     frames_used: list = field(default_factory=list)
     shading: Shading | None = None
+    quality: FitQuality | None = None
 
     def at(self, prior: SpatPrior, t: int) -> Gaussians:
         """The Gaussians at frame ``t``: part k moved by ``prior.poses[k, t]``, shaded as it then faces the light."""
@@ -537,4 +542,12 @@ def reconstruct_object(frames, masks, prior: SpatPrior, *, frames_used: Sequence
                        albedo if shading is None else shading.sh_at(np.eye(3)[None], np.zeros(len(parts), int),
                                                                      albedo))
     result.check_finite()
-    return Reconstruction(result, parts.astype(np.int32), losses, visible, shading)
+    reconstruction = Reconstruction(result, parts.astype(np.int32), losses, visible, shading)
+    reconstruction = replace(reconstruction, quality=fit_quality(reconstruction, frames, masks, prior, visible))
+    if reconstruction.quality.poor:
+        q = reconstruction.quality.summary()
+        warnings.warn(f"the object fitted explains its frames poorly (silhouette IoU {q['silhouette_iou']:.2f} "
+                      f"median, {q['silhouette_iou_worst']:.2f} at frame {q['worst_frame']}): no rigid object moves "
+                      "as the poses say; check the masks (--save-masks) or choose the object with --source-point "
+                      "and --source-exclude")
+    return reconstruction
