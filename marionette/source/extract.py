@@ -348,7 +348,8 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
                        min_eigen=options.min_eigen, strict=_strictness(options), progress=progress)
     # Strict tracks are pieces of chains, one surface point each: the pose fit takes the pieces; what needs long
     # tracks (the amount of motion, the focal length, parts and joints) takes the chains.
-    chains, chain_of = tracks.joined(), tracks.chains()
+    chain_of = tracks.chains()
+    chains = tracks.joined(chain_of)
     focal = None
     if options.estimate_focal and depths is None:
         with stages("focal", "focal length", len(FOCAL_SCALES) + 1) as progress:

@@ -172,11 +172,11 @@ class Tracks:
         return Tracks(self.uv[:, keep], self.visible[:, keep], self.start[keep], self.strict, self.anchor_match,
                       continues)
 
-    def joined(self) -> "Tracks":
-        """One track per chain (:meth:`chains`), each following its pieces in turn: long tracks that carry
-        each cut's small step error on, for what needs them long (the part segmentation, the focal length,
-        the amount of motion)."""
-        chain = self.chains()
+    def joined(self, chain: np.ndarray | None = None) -> "Tracks":
+        """One track per chain (:meth:`chains`, or ``chain`` (M,) when already at hand), each following its
+        pieces in turn: long tracks that carry each cut's small step error on, for what needs them long (the
+        part segmentation, the focal length, the amount of motion)."""
+        chain = self.chains() if chain is None else chain
         count = int(chain.max()) + 1 if self.num_tracks else 0
         uv = np.full((self.num_frames, count, 2), np.nan, np.float32)
         frame, m = np.nonzero(self.visible)
