@@ -254,3 +254,19 @@ def test_a_followed_mask_does_not_spill_past_an_automatic_mask_that_holds_it():
     followed = _follow(thing | alike, image, thing | holder, (120, 80), reach)
     assert followed[thing].all()
     assert not followed[:, 90 + reach + 1:].any()
+
+
+def test_a_point_excluded_on_the_background_does_not_cut_the_object_that_later_covers_it():
+    """What an excluded point puts out is carried along the flow: where the object moves over it, the object's
+    own pixels carry on instead, and the background point leaves no hole."""
+    from marionette.synthetic import make_scene
+
+    scene = make_scene("translation", num_frames=16, size=(W, H), seed=0)
+    later = scene.masks[-1] & ~scene.masks[0]
+    ys, xs = np.nonzero(later)
+    point = (float(xs[len(xs) // 2]), float(ys[len(ys) // 2]))  # background on frame 0, the object's at the end
+    depth = cv2.distanceTransform(scene.masks[0].astype(np.uint8), cv2.DIST_L2, 5)
+    y, x = np.unravel_index(np.argmax(depth), depth.shape)
+    masks = prompted_masks(scene.frames, Prompt(points=((float(x), float(y)),), exclude=(point,)))
+    assert masks[-1][round(point[1]), round(point[0])]
+    assert min(iou(m, s) for m, s in zip(masks, scene.masks)) > 0.9
