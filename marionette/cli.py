@@ -664,6 +664,8 @@ def reconstruct(source: Annotated[Path, typer.Argument(help="Video file or folde
                     help="Optimisation steps (one frame each; the first two thirds at half resolution).")] = 900,
                 max_side: Annotated[int, typer.Option(
                     help="Long side of the frames the fit works on (before cropping to the object).")] = 960,
+                source_point: SourcePoint = None, source_box: SourceBox = None,
+                source_exclude: SourceExclude = None,
                 quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False,
                 config: Config = None) -> None:
     """Reconstruct the source object as 3D Gaussians at frame 0, with each Gaussian's part."""
@@ -682,11 +684,12 @@ def reconstruct(source: Annotated[Path, typer.Argument(help="Video file or folde
     options = ReconstructOptions(iterations=iterations, max_side=max_side)
     extract_options = ExtractOptions(parts=checked("--parts", parse_parts, parts))
     focal = checked("--focal", parse_focal, focal)
+    prompt = _prompt("source", source_point, source_box, source_exclude)
     with _session("reconstruct", quiet, verbose, json_summary) as session:
         given = None if prior is None else read_prior(prior)
         result, used = pipeline.reconstruct(source, masks=masks, prior=given, focal=focal, start=start, end=end,
                                             stride=stride, extract_options=extract_options, options=options,
-                                            reporter=session.reporter)
+                                            prompt=prompt, reporter=session.reporter)
         write_ply(session.stage(output), result.gaussians, extra={"part": result.parts})
         session.output("object", output)
         losses = result.losses

@@ -132,7 +132,7 @@ def extract(source: str | Path, *, masks: str | Path | None = None, depth: str |
 
 def reconstruct(source: str | Path, *, masks: str | Path | None = None, prior: SpatPrior | None = None,
                 focal: float | str | None = None, start: int = 0, end: int | None = None, stride: int = 1,
-                extract_options: ExtractOptions = ExtractOptions(), options=None,
+                extract_options: ExtractOptions = ExtractOptions(), options=None, prompt: Prompt | None = None,
                 reporter: Reporter | None = None):
     """Source video (file or frame folder) → the object as Gaussians at frame 0, and the prior used.
 
@@ -145,13 +145,12 @@ def reconstruct(source: str | Path, *, masks: str | Path | None = None, prior: S
     prior's long side, must have the prior's image size. Without a
     ``prior`` it is extracted first as :func:`extract` does (``max_side``
     :data:`DEFAULT_MAX_SIDE`, ``focal``, ``extract_options``). Masks are
-    read from ``masks`` or found as extraction finds them
-    (:func:`~marionette.source.foreground.auto_masks`).
+    read from ``masks``, or follow the object ``prompt`` picks on the first
+    frame used, or are found as extraction finds them (:func:`source_masks`).
     ``options`` (:class:`~marionette.reconstruct.ReconstructOptions`) sets
     the fit; its ``max_side`` is the fit's working resolution.
     """
     from .reconstruct import ReconstructOptions, reconstruct_object
-    from .source.foreground import auto_masks
 
     reporter = reporter or Reporter(quiet=True)
     options = options or ReconstructOptions()
@@ -167,11 +166,7 @@ def reconstruct(source: str | Path, *, masks: str | Path | None = None, prior: S
         if tuple(int(v) for v in prior.image_size) != (w, h):
             raise InputError(f"the prior is for {prior.image_size[0]}x{prior.image_size[1]} frames but the source's "
                              f"are {w}x{h} at that long side")
-    if masks is not None:
-        mask_stack = read_masks(masks, count=t, size=(w, h), indices=video.indices)
-    else:
-        with reporter.stage("foreground masks", t) as progress:
-            mask_stack = auto_masks(video.frames, progress=progress)
+    mask_stack = source_masks(video, masks, prompt, reporter=reporter)
     if not np.asarray(mask_stack).any():
         raise InputError("the object is not visible in any frame (every mask is empty)")
     if prior is None:

@@ -187,6 +187,32 @@ def test_cli_writes_ply_with_parts(source_dir, tmp_path, capsys):
     assert np.linalg.norm(light) == pytest.approx(1.0, abs=1e-3) and 0 < summary["figures"]["light_diffuse"] < 1
 
 
+def test_cli_fits_the_object_a_click_picks_and_reports_how_well(source_dir, scene, tmp_path, capsys):
+    """Without masks the object comes from a click, as `extract` takes it; the fit's check is in the summary."""
+    ys, xs = np.nonzero(scene.masks[0])
+    out = tmp_path / "object.ply"
+    code = cli.main(["reconstruct", str(source_dir / "frames"), "--prior", str(source_dir / "prior.npz"),
+                     "--source-point", f"{int(np.median(xs))},{int(np.median(ys))}", "--iterations", "100",
+                     "-o", str(out), "--json"])
+    assert code == 0 and out.is_file()
+    fit = json.loads(capsys.readouterr().out)["figures"]["fit"]
+    assert fit["silhouette_iou"] > 0.85 and fit["worst_frame"] in range(T)
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--source-exclude", "10,10"], "needs a --source-point or --source-box"),
+    (["--source-point", "500,10"], "lies outside the 160x120 first frame"),
+    (["--source-point", "80,60", "--masks", "MASKS"], "a mask folder or as a prompt, not both"),
+])
+def test_cli_refuses_bad_prompts(source_dir, tmp_path, capsys, args, message):
+    args = [str(source_dir / "masks") if a == "MASKS" else a for a in args]
+    code = cli.main(["reconstruct", str(source_dir / "frames"), "--prior", str(source_dir / "prior.npz"), *args,
+                     "-o", str(tmp_path / "object.ply")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and err[0].startswith("error: ") and message in err[0], err
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.parametrize("prior, masks, iterations, output, message", [
     ("short.npz", "masks", 5, "object.ply", "the prior has 8 frames but the source has 16"),
     ("wide.npz", "masks", 5, "object.ply", "the prior is for 160x100 frames"),

@@ -548,6 +548,6 @@ def reconstruct_object(frames, masks, prior: SpatPrior, *, frames_used: Sequence
         q = reconstruction.quality.summary()
         warnings.warn(f"the object fitted explains its frames poorly (silhouette IoU {q['silhouette_iou']:.2f} "
                       f"median, {q['silhouette_iou_worst']:.2f} at frame {q['worst_frame']}): no rigid object moves "
-                      "as the poses say; check the masks (--save-masks) or choose the object with --source-point "
-                      "and --source-exclude")
+                      "as the poses say; check the masks (extract --save-masks writes them) or choose the object "
+                      "with --source-point and --source-exclude")
     return reconstruction
