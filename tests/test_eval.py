@@ -15,7 +15,7 @@ from marionette.camera import Camera
 from marionette.errors import InputError
 from marionette.eval import eval_self, frame_metrics, motion_fidelity, on_white, self_target
 from marionette.eval.fidelity import track_similarity
-from marionette.io import write_image, write_video
+from marionette.io import read_video, write_image, write_video
 from marionette.reconstruct import ReconstructOptions
 from marionette.synthetic import make_scene
 from marionette.target.lift import LiftOptions, lift_image
@@ -67,7 +67,7 @@ def test_self_transfer_reproduces_the_rigid_synthetic_source(scene, evaluated):
 
 def test_metrics_json_matches_an_independent_recomputation(scene, evaluated):
     root, metrics = evaluated
-    rendered = np.stack(imageio.mimread(root / "out" / "video.mp4", memtest=False))
+    rendered = np.asarray(read_video(root / "out" / "video.mp4").frames)
     source = np.stack([imageio.imread(p) for p in sorted((root / "frames").glob("*.png"))])
     masks = np.stack([imageio.imread(p) for p in sorted((root / "masks").glob("*.png"))]) > 0
     assert rendered.shape == source.shape == (24, SIZE[1], SIZE[0], 3)

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import gc
 import re
 import subprocess
+import warnings
 
 import cv2
 import imageio_ffmpeg
@@ -12,6 +14,7 @@ import pytest
 
 from marionette.errors import InputError
 from marionette.io import Video, read_image, read_masks, read_video, write_image, write_video
+from marionette.io.video import open_video
 
 
 def smooth_frames(t: int, h: int, w: int) -> np.ndarray:
@@ -343,3 +346,28 @@ def test_gif_lasts_as_long_as_its_frames_and_stays_small(tmp_path):
     with Image.open(tmp_path / "fast.gif") as gif:
         delays = [frame.info["duration"] for frame in ImageSequence.Iterator(gif)]
     assert min(delays) >= 20 and sum(delays) == pytest.approx(800, rel=0.01)
+
+
+def test_reading_or_writing_a_video_leaves_no_pipe_to_the_garbage_collector(tmp_path):
+    """ffmpeg's pipes are closed when a pass ends, reads to the end or fails, and when a write is interrupted:
+    none is left to be found unclosed."""
+    write_video(tmp_path / "v.mp4", smooth_frames(5, 32, 32), 10)
+    (tmp_path / "bad.mp4").write_bytes(b"not a video" * 100)
+
+    def interrupted():
+        yield from smooth_frames(3, 16, 16)
+        raise RuntimeError("stop")
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", ResourceWarning)
+        with pytest.raises(RuntimeError):
+            write_video(tmp_path / "w.mp4", interrupted(), 10)
+        video = read_video(tmp_path / "v.mp4")
+        opened = open_video(tmp_path / "v.mp4")
+        opened.frames[3]
+        opened.frames.close()
+        with pytest.raises(InputError, match="cannot read video"):
+            read_video(tmp_path / "bad.mp4")
+        del video, opened
+        gc.collect()
+    assert [str(w.message) for w in caught if issubclass(w.category, ResourceWarning)] == []

@@ -3,7 +3,6 @@
 import os
 import pickle
 
-import imageio.v2 as imageio
 import numpy as np
 import pytest
 
@@ -11,7 +10,7 @@ from marionette.errors import InputError
 from marionette.eval import eval_self
 from marionette.eval import lpips as lpips_module
 from marionette.eval.lpips import LPIPS, WEIGHTS_ENV, conv2d, find_weights, max_pool
-from marionette.io import write_image, write_video
+from marionette.io import read_video, write_image, write_video
 from marionette.synthetic import make_scene
 
 SHAPES = {"AlexNet_0/Conv_0": (11, 11, 3, 64), "AlexNet_0/Conv_1": (5, 5, 64, 192),
@@ -112,7 +111,7 @@ def test_eval_self_reports_lpips_per_frame_when_weights_are_present(tmp_path, mo
         write_image(tmp_path / "masks" / f"{t:05d}.png", m)
     # The frame-0 target: which target is rendered does not matter to how LPIPS is reported.
     metrics = eval_self(tmp_path / "frames", tmp_path / "masks", tmp_path / "out", fidelity=False, target="frame0")
-    rendered = np.stack(imageio.mimread(tmp_path / "out" / "video.mp4", memtest=False))
+    rendered = np.asarray(read_video(tmp_path / "out" / "video.mp4").frames)
     reference = np.where(scene.masks[..., None], scene.frames, 255).astype(np.uint8)
     model = LPIPS(weights)
     expected = [model(a, b) for a, b in zip(reference, rendered)]

@@ -17,6 +17,7 @@ import operator
 import re
 import subprocess
 import tempfile
+import traceback
 import warnings
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
@@ -466,7 +467,7 @@ def _check_pixel_count(path: Path) -> None:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
-            with Image.open(path) as image:
+            with open(path, "rb") as handle, Image.open(handle) as image:  # closed even when a read fails
                 width, height = image.size
     except Image.DecompressionBombError as exc:  # beyond Pillow's own limit, so beyond ours
         raise InputError(f"image {path} is too large: {_one_line(exc)}") from None
@@ -551,6 +552,7 @@ def _ffmpeg_frames(path: Path) -> tuple[Iterator[tuple[str, np.ndarray]], float]
         meta = next(reader)
     except Exception as exc:  # OSError with ffmpeg's log, or a parse error on odd streams
         reader.close()
+        _close_pipes(_ffmpeg_process(frame for frame, _ in traceback.walk_tb(exc.__traceback__)))
         raise InputError(f"cannot read video {path} (corrupt, truncated or unsupported): "
                          f"{_ffmpeg_reason(exc)}") from exc
     finally:
@@ -558,6 +560,9 @@ def _ffmpeg_frames(path: Path) -> tuple[Iterator[tuple[str, np.ndarray]], float]
     width, height = meta["size"]
     fps = meta.get("fps") or 0.0
     fps = fps if math.isfinite(fps) and fps > 0 else DEFAULT_FOLDER_FPS
+    # imageio-ffmpeg closes ffmpeg's stdin and stdout only when it stops a process still running; a video read
+    # to its end left both pipes to the garbage collector (a ResourceWarning, two file descriptors per pass)
+    process = _ffmpeg_process([reader.gi_frame])
 
     def frames() -> Iterator[tuple[str, np.ndarray]]:
         try:
@@ -567,8 +572,31 @@ def _ffmpeg_frames(path: Path) -> tuple[Iterator[tuple[str, np.ndarray]], float]
             raise InputError(f"cannot read video {path}: {_ffmpeg_reason(exc)}") from exc
         finally:
             reader.close()
+            _close_pipes(process)
 
     return frames(), fps
+
+
+def _ffmpeg_process(frames: Iterable) -> subprocess.Popen | None:
+    """The ffmpeg process held by one of these Python frames (imageio-ffmpeg's reader calls it ``process``)."""
+    for frame in frames:
+        process = frame.f_locals.get("process") if frame is not None else None
+        if isinstance(process, subprocess.Popen):
+            return process
+    return None
+
+
+def _close_pipes(process: subprocess.Popen | None) -> None:
+    """Close a finished ffmpeg process's stdin and stdout, and reap it."""
+    if not isinstance(process, subprocess.Popen):
+        return
+    for pipe in (process.stdin, process.stdout):
+        if pipe is not None and not pipe.closed:
+            pipe.close()
+    try:
+        process.wait(timeout=5)
+    except subprocess.TimeoutExpired:  # imageio-ffmpeg has asked it to stop; it is killed rather than waited for
+        process.kill()
 
 
 def _ffmpeg_reason(exc: BaseException) -> str:
@@ -718,6 +746,8 @@ def _write_mp4(path: Path, frames: Iterator[np.ndarray], fps: float) -> None:
             code = process.wait()
         except BaseException:
             process.kill()
+            with contextlib.suppress(OSError):  # what is left in the buffer has nowhere to go
+                process.stdin.close()
             process.wait()
             raise
         if code != 0:
