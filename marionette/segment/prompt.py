@@ -215,9 +215,11 @@ def prompted_regions(image: np.ndarray, prompt: Prompt, *, model: SalientModel |
     labels[~inside] = cv2.GC_BGD
     labels[_discs((h, w), prompt.points, radius)] = cv2.GC_FGD
     excluded = _discs((h, w), prompt.exclude, radius)
-    # the split-off side is background but for a band along the split, where GrabCut may still move it
-    band = cv2.dilate(salient.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (4 * radius + 1,) * 2))
-    labels[excluded | rejected | (split_off & ~band.astype(bool))] = cv2.GC_BGD
+    background = excluded | rejected
+    if split_off.any():  # background but for a band along the split, where GrabCut may still move it
+        ring = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (4 * radius + 1,) * 2)
+        background |= split_off & ~cv2.dilate(salient.astype(np.uint8), ring).astype(bool)
+    labels[background] = cv2.GC_BGD
     if prompt.box is not None and not (labels == cv2.GC_PR_FGD).any() and not prompt.points:
         labels[inside & ~excluded] = cv2.GC_PR_FGD  # nothing salient in the box: the box itself starts GrabCut
     if (labels == cv2.GC_BGD).all() or not np.isin(labels, (cv2.GC_BGD, cv2.GC_PR_BGD)).any():
