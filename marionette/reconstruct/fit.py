@@ -44,7 +44,7 @@ from ..geometry import matrix_to_quaternion, quaternion_to_matrix
 from ..optim import Adam
 from ..prior import SpatPrior
 from ..progress import ProgressCallback
-from ..render import render
+from ..render import RenderOutput, render
 from ..render.backward import render_with_grad
 from ..render.sh import rotate_sh
 from ..trajectory import Trajectory
@@ -237,13 +237,17 @@ class Reconstruction:
             return Trajectory(means, rotations, self.parts)
         return ShadedTrajectory(means, rotations, self.parts, self.shading)
 
+    def render_filmed(self, prior: SpatPrior, t: int) -> RenderOutput:
+        """Frame ``t`` on white as the source camera filmed it (the prior's intrinsics, and its own motion when
+        extraction removed it): what was fitted to frame ``t``. Image (H, W, 3), alpha and depth (H, W)."""
+        w, h = (int(v) for v in prior.image_size)
+        return render(self.at(prior.motion_in("filmed"), t), Camera(prior.intrinsics, np.eye(4), w, h),
+                      (1.0, 1.0, 1.0))
+
     def render_frame(self, prior: SpatPrior, t: int, camera: Camera | None = None) -> np.ndarray:
-        """(H, W, 3) float32 render of frame ``t`` on white, by default as the source camera filmed it (the
-        prior's intrinsics, and its own motion when extraction removed it): what was fitted to frame ``t``."""
+        """(H, W, 3) float32 render of frame ``t`` on white, by default as filmed (:meth:`render_filmed`)."""
         if camera is None:
-            w, h = (int(v) for v in prior.image_size)
-            camera = Camera(prior.intrinsics, np.eye(4), w, h)
-            prior = prior.motion_in("filmed")
+            return self.render_filmed(prior, t).image
         return render(self.at(prior, t), camera, (1.0, 1.0, 1.0)).image
 
 

@@ -16,9 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..camera import Camera
 from ..prior import SpatPrior
-from ..render import render
 
 __all__ = ["FitQuality", "fit_quality", "POOR_IOU"]
 
@@ -61,19 +59,17 @@ def fit_quality(reconstruction, frames, masks, prior: SpatPrior, frames_fitted) 
     """Score a :class:`~.fit.Reconstruction` on up to :data:`SCORED_FRAMES` of ``frames_fitted``.
 
     ``frames`` (T, H, W, 3) uint8 and ``masks`` (T, H, W) bool at the prior's image size; each frame is
-    rendered as the source camera filmed it (:meth:`~.fit.Reconstruction.render_frame`).
+    rendered as the source camera filmed it (:meth:`~.fit.Reconstruction.render_filmed`).
     """
     from ..eval.metrics import masked_psnr  # here: the eval package imports the reconstruction
 
     fitted = list(frames_fitted)
     picks = np.unique(np.linspace(0, len(fitted) - 1, min(SCORED_FRAMES, len(fitted))).round().astype(int))
     scored = [fitted[i] for i in picks]
-    w, h = (int(v) for v in prior.image_size)
-    camera = Camera(prior.intrinsics, np.eye(4), w, h)
-    filmed = prior.motion_in("filmed")
+    filmed = prior.motion_in("filmed")  # once here; the same prior again in each render
     ious, psnrs = [], []
     for t in scored:
-        out = render(reconstruction.at(filmed, t), camera, (1.0, 1.0, 1.0))
+        out = reconstruction.render_filmed(filmed, t)
         mask = np.asarray(masks[t], bool)
         silhouette = out.alpha >= 0.5
         union = (silhouette | mask).sum()

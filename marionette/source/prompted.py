@@ -207,7 +207,6 @@ def _follow(carried: np.ndarray, image: np.ndarray | None, automatic: np.ndarray
     """A frame's mask from the previous one carried into it (h, w) bool, the frame (h, w, 3) at working size
     and its automatic mask (full size, or None), never on ``away`` (h, w) bool (what excluded points put out);
     without ``snap``, no GrabCut and no frame needed (frame 0's mask is GrabCut's)."""
-    bound = None
     if away is not None:
         carried = carried & ~away
     if automatic is not None:
@@ -220,16 +219,14 @@ def _follow(carried: np.ndarray, image: np.ndarray | None, automatic: np.ndarray
         found &= cv2.dilate(carried.astype(np.uint8), disc).astype(bool)
         if _iou(found, carried) >= _AGREE:
             return found
-        # The automatic mask holds the object with more (the person holding it): the object stays within it
-        ring = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * reach + 1,) * 2)
-        near = cv2.dilate(automatic.astype(np.uint8), ring).astype(bool)
-        if (carried & near).sum() >= _COVERED * carried.sum():
-            bound = near
     if not snap:
         return carried
     snapped = _snap_to_edges(image, carried, reach)
-    if bound is not None:
-        snapped &= bound
+    if automatic is not None:  # it holds the object with more (the person holding it): the object stays within it
+        ring = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * reach + 1,) * 2)
+        near = cv2.dilate(automatic.astype(np.uint8), ring).astype(bool)
+        if (carried & near).sum() >= _COVERED * carried.sum():
+            snapped &= near
     if away is not None:
         snapped &= ~away
     return snapped if _iou(snapped, carried) >= _AGREE else carried
