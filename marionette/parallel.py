@@ -1,10 +1,9 @@
 """Loops shared among threads: a numba kernel compiled with ``nogil=True``, run on a pool of threads.
 
 Why not ``prange``: numba compiles a ``prange`` loop's body twice (as a plain function and again inside
-the parallel loop), and the parallel-loop passes are slow on large bodies. On a fresh install that
-compilation was most of the first run's time (the rasterizer's forward and backward kernels: 29 s; see
-``docs/benchmarks/first_run.md``). A ``nogil`` kernel compiles once and runs as fast, its items
-dealt out here.
+the parallel loop), and the parallel-loop passes are slow on large bodies: on a fresh install that
+compilation would be most of the first run's time (``docs/benchmarks/first_run.md``). A ``nogil`` kernel
+compiles once and runs as fast, its items dealt out here.
 """
 
 from __future__ import annotations

@@ -5,9 +5,9 @@ last place apart: OpenBLAS picks its kernel by CPU (``OPENBLAS_CORETYPE``
 overrides it), numba compiles for the CPU at hand, NumPy and OpenCV dispatch
 SIMD code by CPU. Most of the pipeline carries such differences on at their
 size, but a fit with a discrete choice in it (RANSAC keeping its best random
-sample, an inlier gate) can turn them into another answer: the backpack
-clip's poses came out degrees apart under OpenBLAS's Haswell kernel and its
-SkylakeX one on the same machine (``docs/benchmarks/reproducibility_real.md``).
+sample, an inlier gate) can turn them into another answer, poses degrees
+apart under two BLAS kernels of one machine
+(``docs/benchmarks/reproducibility_real.md``).
 Rounding what such a choice starts from onto a grid far finer than its
 accuracy and far coarser than the rounding noise hands every machine the
 same numbers, unless a value lies within that noise of a grid boundary (a

@@ -62,8 +62,8 @@ def self_target(image: np.ndarray, mask: np.ndarray, prior: SpatPrior, *, inset:
     ``inset``: pixels taken off the mask's outline before lifting. A splat
     covers about a pixel around its centre, and the volume's walls stack
     several at the outline, so a lift of the full mask renders a silhouette
-    ~1.5 px wider than the mask; one pixel in, it matches (whole-frame PSNR
-    of the reference view on a 160x120 synthetic box: 20.3 → 25.0 dB).
+    ~1.5 px wider than the mask; one pixel in, it matches
+    (``docs/benchmarks/table1.md``).
     """
     w, h = (int(v) for v in prior.image_size)
     camera = Camera(prior.intrinsics, np.eye(4), w, h)

@@ -1,6 +1,5 @@
-"""The source object reconstructed as 3D Gaussians from its video, masks and SpaT prior (issue 15 §2),
-and its poses refined photometrically against it (issue 16 §1, :mod:`.align`), hinged parts kept on their
-hinges (:mod:`.joints`)."""
+"""The source object reconstructed as 3D Gaussians from its video, masks and SpaT prior, and its poses
+refined photometrically against it (:mod:`.align`), hinged parts kept on their hinges (:mod:`.joints`)."""
 
 from .align import Alignment, AlignOptions, align_poses
 from .fit import Reconstruction, ReconstructOptions, reconstruct_object

@@ -1,6 +1,6 @@
 """Photometric pose refinement: each part's pose in each frame fitted to the frame through the reconstruction.
 
-Analysis by synthesis (issue 16 §1): the reconstructed Gaussians are moved
+Analysis by synthesis: the reconstructed Gaussians are moved
 by the current per-part poses of frame ``t``, rendered on white in that
 frame's (cropped, downscaled) camera and compared with the frame composited
 on white by its mask::

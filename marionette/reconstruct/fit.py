@@ -20,8 +20,7 @@ to its object and downscaled (:mod:`._views`); gradients come from
 Colours are SH of degree 1 in the object's frame, turned with their part at
 every frame: an object turning under a fixed light and camera changes its
 shading with the direction it is seen from, which a constant colour can only
-average (synthetic scenes, held-out masked PSNR +0.7 to +1.6 dB on the turning
-ones; ``benchmarks/bench_reconstruct.py``). The degree-1 terms step at a
+average (docs/benchmarks/reconstruct.md). The degree-1 terms step at a
 twentieth of the base colour's rate, as 3DGS's do. Those colours are an
 albedo, shaded by one light fixed relative to the source camera (the world,
 when the camera stands still) through a normal per Gaussian
@@ -84,16 +83,12 @@ class ReconstructOptions:
         Share of the iterations fitted to the frames at half the working resolution first (a quarter
         of the pixels per step), before the rest at full resolution. The default, 600 such steps
         (densification ends within them) and 300 at full resolution, takes about the time of 600 steps
-        all at full resolution and fits car-turn (Table 1) as well as 800 of them: SSIM 0.9722 -> 0.9744
-        and LPIPS 0.030 -> 0.027 (800 steps: 0.9738 and 0.028; codec left out). 400 steps at full
-        resolution after the 600 gain another 0.002 LPIPS for 10-25 % more time, which the 40 s budget
-        of a 50-frame clip does not leave. The sharp synthetic scenes lose a little (held-out masked
-        PSNR -1.7 to +0.1 dB, all above 33 dB; ``benchmarks/bench_reconstruct.py``).
+        all at full resolution and fits Table 1's real clips as well as 800 of them, within the 40 s
+        budget of a 50-frame clip (docs/benchmarks/reconstruct.md).
     max_side : int
         Long side of the frames the fit works on, before cropping (intrinsics follow). The
         default is the size frames are read at, so a 480p clip is fitted at its own resolution:
-        a fit at 480 px cannot hold the texture of an 854 px frame (synthetic scenes, held-out
-        masked PSNR 21-24 dB at 480 px, 27-38 dB at 854 px; ``benchmarks/bench_reconstruct.py``).
+        a fit at 480 px cannot hold the texture of an 854 px frame.
     init_frames : int
         Frames whose silhouette lifts start the fit (spread over the fitting frames).
     init_cells : int
@@ -103,25 +98,18 @@ class ReconstructOptions:
     gaussians_per_pixel : float
         A second cap, this many Gaussians per object pixel (median object area of the
         fitting views at the working resolution): more Gaussians than the views have
-        pixels are not constrained by them, only slower. On four 128x96 and 160x120
-        synthetic clips, held-out frames come out within 0.2 dB with 12,000 Gaussians
-        (3-7 per pixel) and with 2 per pixel, which fit 1.5-2.7x faster.
+        pixels are not constrained by them, only slower.
     lr_means : float
         Adam step of the centres, in units of the object radius; decays to a tenth.
     lr_log_scales, lr_opacity, lr_colour, lr_quats : float
         Adam steps of the log-scales, opacity logits, SH DC coefficients, quaternions. The steps of
-        the centres, log-scales, opacities and colours are twice, twice, four and two times those
-        first tuned on the synthetic scenes (since 2026-12-05): in 600 steps the real clips of Table 1
-        come out sharper (LPIPS car-turn 0.042 -> 0.032, car-shadow 0.019 -> 0.015, train 0.082 ->
-        0.062; ``benchmarks/bench_table1.py``), while the synthetic scenes' held-out masked PSNR moves by -1.3 to
-        +2.0 dB (``benchmarks/bench_reconstruct.py``, all still above 34 dB).
+        the centres, log-scales, opacities and colours are two to four times what the synthetic scenes
+        alone ask for: the real clips of Table 1 come out sharper (docs/benchmarks/reconstruct.md).
     ssim_weight : float
-        ``λ`` of the D-SSIM term (3DGS uses 0.2). Off by default: at 0.2 a step costs ~10 % more;
-        on car-turn (Table 1) it gives about +0.003 SSIM and -0.002 LPIPS at 600 and 1000 steps
-        (``benchmarks/bench_iterations.py --ssim-weights``), which ~150 more steps without it
-        match for LPIPS and PSNR, and a synthetic scene's held-out masked PSNR falls (translation,
-        50 frames at 854x480: 38.6 -> 36.9 dB). With the larger steps of 2026-12-05 it still gives
-        +0.003 SSIM and -0.001 LPIPS on car-turn at 600 steps, for 20-30 % more fit time.
+        ``λ`` of the D-SSIM term (3DGS uses 0.2). Off by default: on car-turn (Table 1) it gains
+        a few thousandths of SSIM and LPIPS for 10-30 % more fit time, less than a few more steps
+        without it give, and it lowers the synthetic scenes' held-out masked PSNR
+        (docs/benchmarks/ssim_loss.md).
     mask_weight : float
         ``λ_mask`` of the alpha-vs-mask term.
     densify_every : int

@@ -27,12 +27,10 @@ __all__ = ["bundle_adjust", "huber_cost"]
 _DENSE_FRAMES = 250
 # Beyond, it is formed dense only where that is cheaper and small: a BLAS product does the work of
 # 6F × 3N × 6F multiply-adds about this many times faster than the block-sparse product does its 6 × 3 × 6
-# per pair of observations of a point (1000 frames, 600 tracks of 600 frames each: 1.2 s for the dense
-# product, 20 s for the block-sparse one with a third of its work, on a loaded machine), and both layouts of
-# W take at most _DENSE_BYTES. Otherwise it is formed block-sparse, its cost growing with the frames times the
-# tracks' length rather than with the frames cubed, and solved as a sparse matrix (SuperLU) unless more than
-# _DENSE_SOLVE of it is filled (long tracks couple every frame with every other: 1000 frames, 84 % filled,
-# 17 s by SuperLU, 3 s dense).
+# per pair of observations of a point, and both layouts of W take at most _DENSE_BYTES. Otherwise it is
+# formed block-sparse, its cost growing with the frames times the tracks' length rather than with the frames
+# cubed, and solved as a sparse matrix (SuperLU) unless more than _DENSE_SOLVE of it is filled (long tracks
+# couple every frame with every other, and SuperLU then loses to a dense solve; docs/benchmarks/bundle.md).
 _BLAS_SPEEDUP = 30.0
 _DENSE_BYTES = 256 * 2 ** 20
 _DENSE_SOLVE = 0.25

@@ -34,9 +34,8 @@ grid (``_STEP``), so they repeat under another machine's BLAS kernel too.
 
 Known limits: a single plane (a bare wall) leaves the two-view geometry
 ambiguous; the intrinsics are taken as given (a wrong focal length is
-absorbed into the poses as best it can be). On the real clips the full pose
-explains 69-93 % of the background tracks in nine frames of ten where a
-rotation explains 3-23 % (docs/benchmarks/extract_real.md).
+absorbed into the poses as best it can be). docs/benchmarks/extract_real.md
+compares it with the rotation model on the real clips.
 """
 
 from __future__ import annotations
@@ -55,9 +54,8 @@ __all__ = ["CameraPoses", "bearings_of", "fit_camera_poses"]
 #: Every point and pose the chain hands on (a triangulation, a PnP fit, a round of the bundle adjustment) is
 #: rounded to this grid (units of the first two views' baseline; radians): each frame's RANSAC keeps its best
 #: random sample, and which one wins can follow the last bits of its input, which the matrix products and
-#: LAPACK solves in between take from the BLAS kernel (without FMA, OpenBLAS's Sandybridge kernel put the
-#: backpack's camera 0.35 units off by the clip's end). Their rounding noise is about 1e-13
-#: (:mod:`~marionette.reproducible`).
+#: LAPACK solves in between take from the BLAS kernel (docs/benchmarks/reproducibility_real.md). Their
+#: rounding noise is about 1e-13 (:mod:`~marionette.reproducible`).
 _STEP = 2.0 ** -20
 
 

@@ -20,8 +20,7 @@ stays where it starts), so it is searched in one dimension instead:
    parabola through the best grid point and its neighbours gives the focal;
 4. the first fit carries the start's shape guess, which pulls the answer
    towards the start, so where it moved the focal length a second search
-   starts from its answer (car-turn: 60° -> 50° -> 42°; the synthetic turns
-   end within 3.5 % of where they end from another start).
+   starts from its answer (docs/benchmarks/focal.md).
 
 When the cost barely changes next to its best candidate, or does not climb
 steadily away from it on both sides (a translating or in-plane turning
@@ -60,7 +59,7 @@ _SETTLED = 0.05
 #: Cost evaluations of each bundle adjustment.
 _BA_EVALUATIONS = 40
 #: An estimate is rounded to this many pixels: far finer than its accuracy (a few percent), far coarser than
-#: the 1e-9 px by which another BLAS kernel moves it (car-turn: 964 px, and 911 px from a focal 7e-10 px off).
+#: the 1e-9 px by which another BLAS kernel moves it (docs/benchmarks/reproducibility_real.md).
 _FOCAL_STEP = 2.0 ** -6
 #: Huber scale of the reprojection cost (pixels), as the pose fit's refinement uses.
 _LOSS_SCALE = 1.0

@@ -50,9 +50,9 @@ _BEHIND_PX = 1e3
 #: A track whose median residual under the first fit exceeds this (pixels) is dropped before the second.
 _DROP_PX = 1.0
 #: The key frames' fit starts from the free fit's angles times each of these, and the hinge that explains the
-#: tracks best is kept. Its cost has several minima where the turn trades against the part's relief: on a
-#: 20-frame synthetic hinge (200x150) the free poses of one BLAS build led to a 0.40 px minimum with the lid
-#: 27° short, those of another to the 0.10 px one 2° from the truth; from half the angles, both reach the latter.
+#: tracks best is kept. Its cost has several minima where the turn trades against the part's relief, and free
+#: angles that differ by a RANSAC inlier can start it in a wrong one; from half the angles, it reaches the true
+#: one (docs/benchmarks/suite.md).
 _START_SCALES = (1.0, 0.5)
 
 

@@ -11,15 +11,14 @@ with a pose ``(R_t, T_t)`` per frame and a 3D point ``X_m`` per track (camera
 frame 0). A track seeded at frame s is triangulated from the frames where it
 is visible, so re-seeded tracks need no special case. Per-frame 2D models
 (affine, homography) are cheaper but do not tell a lid turning on a hinge
-from the parallax of a box turning out of plane: measured on the synthetic
-scenes, a homography between consecutive frames leaves about the same
-residual on both (0.65 vs 0.96 px median). A motion is fitted by
-Levenberg–Marquardt bundle adjustment over all its poses and points (Schur
-complement on the poses; Triggs et al., "Bundle adjustment — a modern
-synthesis", 1999), started frame by frame from a fronto-parallel surface,
-with a weak prior holding each point near its first ray at the part's depth
-(it fixes the scale and the depth of points seen without parallax). Long
-clips are subsampled to ``max_frames`` frames.
+from the parallax of a box turning out of plane (a homography leaves about
+the same residual on both). A motion is fitted by Levenberg–Marquardt bundle
+adjustment over all its poses and points (Schur complement on the poses;
+Triggs et al., "Bundle adjustment — a modern synthesis", 1999), started frame
+by frame from a fronto-parallel surface, with a weak prior holding each point
+near its first ray at the part's depth (it fixes the scale and the depth of
+points seen without parallax). Long clips are subsampled to ``max_frames``
+frames.
 
 Segmentation, a sequential RANSAC (Torr & Zisserman, "MLESAC", CVIU 2000)
 with spatial smoothing in the spirit of PEARL (Isack & Boykov, IJCV 2012):
@@ -30,21 +29,17 @@ with spatial smoothing in the spirit of PEARL (Isack & Boykov, IJCV 2012):
 2. Growing: a new part is the best of a few candidate motions, each
    refined together with the motions found so far (step 3) and judged by
    the cost of the labelling it leads to. The candidates: the motion of the
-   tracks no motion explains yet, the best of local patch motions around
+   tracks no motion explains yet; the best of local patch motions around
    seeds spread over their part of the frame-0 object and of all of them,
    each refitted to the tracks it explains (RMS reprojection error below
    ``threshold``) while that lowers its truncated quadratic cost (MSAC);
-   for the first part, the whole object's motion when the caller has one
-   (``whole``: :func:`~marionette.source.extract_prior` passes the full
-   pose estimator's, which a long out-of-plane turn does not defeat, unlike
-   the fits here that start from a fronto-parallel surface);
-   and, once a part exists, the motions of halves of the object (the half
-   of the frame-0 tracks nearest each of a few spread seeds). The halves are
-   there because the motions found may explain every track within the
-   threshold, a compromise between parts that move almost alike: on
-   ``davis_train`` one motion explains 92 % of the tracks, but the
-   locomotive and the wagons apart lower the cost by 1.3-2 times the
-   penalty of a part, and no track is left unexplained to seed them.
+   for the first part, the whole
+   object's motion when the caller has one (``whole``, from the full pose
+   estimator, which a long out-of-plane turn does not defeat); and, once a
+   part exists, the motions of halves of the object, since the motions found
+   may explain every track within the threshold, a compromise between parts
+   that move almost alike (the cars of ``davis_train``), and leave no track
+   unexplained to seed another part.
 3. Refinement: labels by iterated conditional modes on a k-nearest-neighbour
    graph of the tracks (neighbours in every frame where tracks are seeded),
    cost ``n_m ρ(e_ml) + β #{neighbours labelled otherwise}``, with ``e_ml``
@@ -52,10 +47,10 @@ with spatial smoothing in the spirit of PEARL (Isack & Boykov, IJCV 2012):
    its number of frames and ``ρ(e) = min(e / σ², τ²)``; then each motion is
    refitted to the tracks of its label that it explains (or cannot judge
    yet, so that it extends in time; with ``whole`` given, the first part's
-   motion gives way only to a refit that explains its tracks better); a
-   few rounds. A part left with fewer
-   than ``5 %`` of the frame-0 tracks (at least 8) is dropped; growing
-   stops when no candidate adds a part.
+   motion gives way only to a refit that explains its tracks better); a few
+   rounds. A part left with fewer than ``5 %`` of the frame-0 tracks (at
+   least 8; only those it explains count) is dropped; growing stops when no
+   candidate adds a part.
 4. ``"auto"`` grows parts up to ``max_parts``, stops after the first count
    that does not lower the score, and keeps the count with the lowest
    score, a GRIC-style criterion (Torr, "Geometric motion segmentation and
@@ -63,27 +58,19 @@ with spatial smoothing in the spirit of PEARL (Isack & Boykov, IJCV 2012):
 
        score(P) = Σ_m n_m ρ(e_m) + P · penalty · τ² · 6 (T - 1)
 
-   Scores within a noise margin (``_SELECTION_MARGIN`` of one part's
-   penalty) count as equal and the simpler model is taken, both for the
-   count and for the whole object's motion against the segmentation's own
-   first motion; :attr:`PartSegmentation.selection` says when that happened.
-   A part's size counts only the frame-0 tracks it explains.
-
    with ``σ = noise``, ``τ = threshold / noise`` and 6 (T - 1) pose
    parameters per moving part (the static group has none). The truncation
    caps what a track costs when no motion explains it, so a new part pays
    off only when it explains tracks that were unexplained (or explained
    markedly worse); each pose parameter costs ``penalty`` observations at
-   the cap. Measured at the defaults (``benchmarks/bench_parts.py``, and
-   the real clips at 854x480), the gain of a part over its penalty:
-   spurious splits of the synthetic rigid boxes and of the hinge's lid
-   up to 0.8, of the real car of ``davis_car-shadow`` 0.33; the hinge's
-   lid 3.3-4.1, the locomotive of ``davis_train`` 1.3-2.0 and its grey car
-   1.2 (at 480x270, the locomotive 0.4: one part). The margin is thin. A
-   motion is fitted on at most ``fit_tracks`` tracks drawn at random:
-   with 100 of davis_train's 1500, the cost of one motion varied by 0.6
-   of the penalty of a part from draw to draw, with 300 by a third, and
-   the parts found did not follow the cars.
+   the cap. Scores within a noise margin (``_SELECTION_MARGIN`` of one
+   part's penalty) count as equal and the simpler model is taken, both for
+   the count and for the whole object's motion against the segmentation's
+   own first motion; :attr:`PartSegmentation.selection` says when that
+   happened. The margin between real and spurious parts is thin
+   (docs/benchmarks/parts.md), and a motion is fitted on ``fit_tracks``
+   tracks drawn at random, enough for its cost not to vary by much of a
+   part's penalty from draw to draw.
 
 The noise σ is estimated from the data unless given: the rigid motions of
 small patches of tracks (a dozen, spread over the object at frame 0) are
@@ -136,16 +123,15 @@ _DEPTH_PRIOR = 16.0
 # Default σ: this multiple of the median RMS error of tracks under the motion of their local patch
 # (:func:`_estimate_noise`, _NOISE_PATCHES patches of _NOISE_PATCH tracks; a fit this local also
 # absorbs part of the error, and tracker errors have heavier tails than Gaussian ones). The
-# threshold: this multiple of σ. Measured on the synthetic scenes: σ 0.17-0.64 px.
+# threshold: this multiple of σ.
 _NOISE_SCALE = 3.0
 _THRESHOLD_SCALE = 2.0
 _NOISE_PATCHES = 16
 _NOISE_PATCH = 12
 # Scores closer than this share of one part's penalty are within noise, and the simpler choice is
-# taken: fewer parts, and the segmentation's own first motion over the whole-object one. The same
-# level's score moves by ~1e-8 of it under another BLAS kernel, but the motions of a compromise fit
-# (a hinge fitted as one body) land in other local optima: the first level of the synthetic hinge
-# scored 8967 or 9088 by the BLAS kernel (a part's penalty: 1080), and the labels followed.
+# taken: fewer parts, and the segmentation's own first motion over the whole-object one. Under another
+# BLAS kernel the motions of a compromise fit (a hinge fitted as one body) can land in other local
+# optima, whose scores differ by about a tenth of a part's penalty (docs/benchmarks/parts.md).
 _SELECTION_MARGIN = 0.15
 
 

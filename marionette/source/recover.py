@@ -1,4 +1,4 @@
-"""Frames the tracks lose, recovered by aligning a model of the object to them (issue 16 §2).
+"""Frames the tracks lose, recovered by aligning a model of the object to them.
 
 Fast or blurred frames cut the LK tracks: too few lifted points remain for
 PnP (or a handful survive and give a poor pose), the frame would be
@@ -16,8 +16,7 @@ IoU); otherwise the frame stays failed, with the reason.
 
 Not the nearest frame with a pose as the model: a lost frame is usually
 blurred, and the next blurred frame agrees with its blurred model all the
-same, so a chain of them drifts (12° on a fast synthetic swing, against 2°
-from the last well-tracked frame; ``docs/benchmarks/recover.md``).
+same, so a chain of them drifts (``docs/benchmarks/recover.md``).
 
 The rigid fit (:func:`~marionette.source.rigid.fit_rigid`) lifts the tracks
 born in a recovered frame with its pose and holds that pose in the bundle

@@ -350,13 +350,12 @@ class RigidOptions:
         A piece of a strict track that starts where the one before it was cut
         and lasts fewer frames is brief: it sits where windows keep failing to
         match (a crease under changing shading, an occluding edge), and it lags
-        the motion by a few hundredths of a pixel a step (0.06-0.08 px over
-        2-3 frames on the synthetic turns, against 0.02 px for tracks seeded on
-        the grid). Where the refinement's median reprojection error shows tracks
-        that close (below 0.25 px), brief pieces are left out of its second pass
-        at the frames 30 other tracks see: over a turn their lags add up to a
-        tilt (in-plane rotation 0.21° → 0.12° median). Noisier tracks keep
-        them, where their number counts. 0: always kept.
+        the motion by a few hundredths of a pixel a step. Where the refinement's
+        median reprojection error shows tracks that close (below 0.25 px), brief
+        pieces are left out of its second pass at the frames 30 other tracks
+        see: over a turn their lags add up to a tilt
+        (``docs/benchmarks/extract.md``). Noisier tracks keep them, where their
+        number counts. 0: always kept.
     seed : int
         Seed of the refinement's track sample.
     """
@@ -431,9 +430,8 @@ _PNP_STEP = 2.0 ** -16
 #: A fitted point farther than this many shape radii from the body's centre is dropped, with its track.
 _MAX_REACH = 10.0
 #: A recovered pose is rounded to this coarser grid (at most 0.1°, against the alignment's own error of 0.5-4°):
-#: the alignment renders in float32, whose last bits follow the CPU, and stops after a fixed number of steps;
-#: numba compiling for another CPU moved the backpack's recovered pose by 1.4e-5 (a chance of about 4 % per
-#: recovered frame that two machines round it differently).
+#: the alignment renders in float32, whose last bits follow the CPU, and stops after a fixed number of steps
+#: (docs/benchmarks/reproducibility_real.md).
 _RECOVERED_STEP = 2.0 ** -9
 
 
@@ -796,9 +794,8 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
             few = rest[at:at + _POINT_CHUNK]
             points[few] = _refine_points(seen[:, few], uv[:, few], k, poses, points[few], options.refine_loss_scale)
         # A point sent far from the body is not on it: its track's rays were nearly parallel, or it follows
-        # another body, and its place is noise (the backpack's reached 3,000 radii, where two BLAS kernels put
-        # it 5e-4 apart). Its track is left out from here on (lifted again, a lid's track fitted with its box
-        # pulled the box's poses: the hinge as one part, 6.5° off instead of 0.2°).
+        # another body, and its place is noise. Its track is left out from here on: lifted again, a lid's
+        # track fitted with its box pulls the box's poses (docs/benchmarks/reproducibility_real.md).
         far = np.linalg.norm(points[lifted] - shape.centroid, axis=1) > _MAX_REACH * shape.radius
         points[lifted[far]], dropped[lifted[far]] = np.nan, True
         # What the next frames start from, rounded as PnP's inputs are (_PNP_STEP).
@@ -846,7 +843,7 @@ def fit_rigid(tracks: Tracks, shape: ShapePrior, *, options: RigidOptions = Rigi
         ``refine_every`` frames, and before a recovery starts from frame ``upto``: a recovered pose is the source
         frame's times the alignment's step, and held from then on, so the source's error stays in it (between
         refinements PnP poses rest on points not yet corrected, and strict tracks' fresh pieces on their chains'
-        first lifts: 9.3° off at a blurred stretch's source, 0.15° after)."""
+        first lifts; docs/benchmarks/recover.md)."""
         nonlocal t_refine
         if not options.refine or refined_upto >= upto:
             return False

@@ -84,11 +84,8 @@ _ANCHOR_SHIFT = 2.0
 # windows aligned so far match their anchor, counted from _PROBE_FRAMES frame
 # steps on; below it, the footage (compression, blur, changing light) cuts
 # strict tracks into pieces a frame or two long, and tracking starts over
-# anchored. Measured (session of 2026-12-05, synthetic scenes of 48 frames at
-# 320x240, DAVIS clips and the backpack): the share's lowest value from step 8
-# on is 0.73-0.97 on every one-part synthetic motion, with or without image
-# noise; over whole clips 0.36-0.66 on the real ones (car-turn 0.71 over its
-# first 8 steps, 0.43 in its middle).
+# anchored. 0.7: the synthetic one-part scenes keep 0.73-0.97, the real clips
+# 0.36-0.66 over the whole clip (docs/benchmarks/extract.md).
 _PROBE_FRAMES = 8
 _STRICT_SHARE = 0.7
 

@@ -221,8 +221,7 @@ def make_scene(motion: str, *, object: str | None = None, num_frames: int = 48,
         the world frame (the camera of frame 0), so the ground truth does not
         change. The background is a plane 10 times further than the object,
         facing the frame-0 camera: it turns with the camera (a homography,
-        with slight parallax under the handheld drift). A static camera gives
-        the same frames as before this option existed.
+        with slight parallax under the handheld drift).
 
     Returns
     -------

@@ -18,8 +18,8 @@ a neighbour in another part). Setting the gradient to zero gives the sweep::
 with ``r̄, q̄`` patch means, ``m_i`` the mean of ``v`` over ``N'(i)`` and
 ``b_i = 1`` in the band. Where we depart from the paper: its kinematic loss
 penalises ``|v_i − v_j|``, which is not zero inside a turning rigid part, so
-smoothing the full velocities bends every part (16–27 % rigidity error in an
-earlier attempt); we smooth the residual from the part's rigid motion, and
+smoothing the full velocities bends every part (docs/benchmarks/transfer.md);
+we smooth the residual from the part's rigid motion, and
 the data term keeps the velocity near it. As rigid fields have no residual,
 only the band and the Gaussians within ``sweeps`` graph hops of it (the
 *active* set) are ever touched, which keeps the cost small.
