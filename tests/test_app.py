@@ -8,6 +8,7 @@ import sys
 import threading
 import time
 import urllib.error
+import urllib.parse
 import urllib.request
 
 import cv2
@@ -146,7 +147,7 @@ def test_parts_and_focal_reach_the_extraction(app, inputs, monkeypatch):
 
 @pytest.mark.parametrize("name, data, message", [
     ("notes.txt", b"hello", "is not a video or an image"),
-    ("clip.mp4", b"not a video at all", "cannot be read"),
+    ("clip.mp4", b"not a video at all", "cannot read video clip.mp4"),
     ("clip.mp4", b"", "is empty"),
 ])
 def test_a_bad_upload_gets_a_message_and_the_server_keeps_serving(app, name, data, message):
@@ -213,3 +214,28 @@ def test_a_work_folder_the_app_made_itself_goes_when_it_stops():
     assert root.is_dir()
     server.stop()
     assert not root.exists()
+
+
+@pytest.mark.parametrize("kind, name, data", [
+    ("source", "clip.mp4", b"not a video at all"),
+    ("source", "clip.gif", b"GIF89a, no more"),
+    ("source", "one frame.mp4", None),  # a video of one frame
+    ("target", "photo.png", b"not a picture"),
+    ("target", "photo.jpg", b"\xff\xd8\xff, no more"),
+])
+def test_an_upload_error_names_the_users_file_never_a_server_path(app, tmp_path, kind, name, data):
+    if data is None:
+        write_video(tmp_path / "one.mp4", np.zeros((1, 32, 32, 3), np.uint8), 10.0)
+        data = (tmp_path / "one.mp4").read_bytes()
+    session = call(app, "/api/session")[1]["session"]
+    status, reply = call(app, f"/api/upload?session={session}&kind={kind}&name={urllib.parse.quote(name)}", data)
+    assert status == 400 and name in reply["error"]
+    assert "/" not in reply["error"], reply["error"]  # no path of the server's
+
+
+def test_a_bad_upload_after_a_good_one_leaves_none_behind(app, inputs):
+    session = call(app, "/api/session")[1]["session"]
+    assert call(app, f"/api/upload?session={session}&kind=target&name=photo.png", inputs[1].read_bytes())[0] == 200
+    assert call(app, f"/api/upload?session={session}&kind=target&name=photo.png", b"not a picture")[0] == 400
+    status, reply = call(app, f"/api/mask?session={session}&kind=target", {"points": [[10, 10]]})
+    assert status == 400 and reply["error"] == "upload the photo first"

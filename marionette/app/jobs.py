@@ -98,7 +98,7 @@ class Session:
         """Keep an uploaded source clip or photo, checked; its first frame or the photo as ``kind.png``.
 
         Returns ``{"width", "height", "frames"?}``. Raises :class:`InputError` for what cannot be used (the
-        file is removed again).
+        file is removed again), naming the file as the user did, never by its path on the server.
         """
         if kind not in ("source", "target"):
             raise InputError(f"unknown upload kind {kind!r}")
@@ -107,28 +107,26 @@ class Session:
         if suffix not in allowed:
             what = "a video or an image" if kind == "source" else "an image"
             raise InputError(f"{name!r} is not {what} ({', '.join(allowed)})")
+        if kind == "source" and suffix in IMAGE_SUFFIXES:
+            raise InputError(f"{name!r} is a still photo; the source must be a video clip (a photo has no motion)")
         if not data:
             raise InputError(f"{name!r} is empty")
         path = self.folder / f"{kind}{suffix}"
         for old in self.folder.glob(f"{kind}.*"):
             old.unlink()
+        setattr(self, kind, None)
         path.write_bytes(data)
         try:
             if kind == "source":
-                if suffix in IMAGE_SUFFIXES:
-                    raise InputError("the source must be a video clip (a still photo has no motion)")
-                video = open_video(path, max_side=_MAX_SIDE)
-                first, count = video.frames[0], len(video.frames)
+                video = open_video(path, max_side=_MAX_SIDE)  # at least 2 frames, or an InputError
+                first, info = video.frames[0], {"frames": len(video.frames)}
                 video.frames.close()
-                if count < 2:
-                    raise InputError(f"{name!r} has {count} frame; a source needs at least 2")
-                info = {"frames": count}
             else:
-                first = read_image(path)[..., :3]
-                info = {}
+                first, info = read_image(path)[..., :3], {}
         except (InputError, OSError, ValueError) as e:
             path.unlink(missing_ok=True)
-            raise InputError(f"{name!r} cannot be read: {e}") from None
+            reason = str(e).splitlines()[0].replace(str(path), name)  # the readers name the path they read
+            raise InputError(reason if name in reason else f"{name!r} cannot be read: {reason}") from None
         write_image(self.folder / f"{kind}.png", first)
         setattr(self, kind, path)
         return {"width": int(first.shape[1]), "height": int(first.shape[0]), **info}
