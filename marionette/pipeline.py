@@ -34,7 +34,7 @@ from .io.video import DEFAULT_MAX_PIXELS, DEFAULT_MAX_SIDE, open_video, write_ma
 from .prior import SpatPrior
 from .progress import Reporter
 from .render import render
-from .render.camera_path import camera_path, load_camera_path
+from .render.camera_path import camera_path, keep_in_view, load_camera_path
 from .scene import SceneCompositor, clean_plate
 from .segment import Prompt, prompted_mask
 from .source import ExtractOptions, extract_prior
@@ -50,9 +50,9 @@ from .transfer.velocity import integrate
 
 __all__ = ["extract", "source_masks", "reconstruct",
            "load_target", "relative_depth", "check_target", "check_part_seeds", "transfer", "output_cameras",
-           "fit_view", "scene_compositor", "frames_outside", "render_frames", "render_video", "write_ply_frames",
-           "side_by_side", "write_side_by_side", "write_preview", "source_intrinsics", "focal_setting",
-           "DEFAULT_MAX_SIDE", "PLY_FRAME_NAME"]
+           "fit_view", "scene_compositor", "frames_outside", "frames_unseen", "render_frames", "render_video",
+           "write_ply_frames", "side_by_side", "write_side_by_side", "write_preview", "source_intrinsics",
+           "focal_setting", "DEFAULT_MAX_SIDE", "PLY_FRAME_NAME"]
 
 
 def source_intrinsics(width: int, height: int, focal: float | None = None) -> np.ndarray:
@@ -327,13 +327,24 @@ def output_cameras(target: LiftedTarget, trajectory: Trajectory, move: str = "st
     ``move`` is static, orbit or dolly with its ``amount`` (see
     :func:`~marionette.render.camera_path.camera_path`). ``framed``: the
     reference view zoomed out to keep the whole motion in frame
-    (:func:`fit_view`); False keeps the photo's own framing (a result in the
-    photo's scene).
+    (:func:`fit_view`; an orbit zooms out further to keep its turned path in
+    frame too), with a warning if some frames still show nothing of the
+    object; False keeps the photo's own framing (a result in the photo's
+    scene).
     """
     if path is not None:
         return load_camera_path(path, trajectory.num_frames)
-    start = fit_view(target.camera, trajectory) if framed else target.camera
-    return camera_path(start, target.gaussians.means.mean(axis=0), trajectory.num_frames, move, amount)
+    centres = trajectory.means.mean(axis=1, dtype=np.float64)  # (T, 3) the object's centre in each frame
+    if not framed:
+        return camera_path(target.camera, centres, move, amount)
+    cameras = camera_path(fit_view(target.camera, trajectory), centres, move, amount)
+    if move == "orbit":  # a dolly keeps the start's zoom: it pushes in on the object
+        cameras = keep_in_view(cameras, _sampled(trajectory))
+    unseen = frames_unseen(trajectory, cameras)
+    if unseen:
+        warnings.warn(f"nothing of the object is in view in {unseen} of {trajectory.num_frames} frames of the "
+                      f"{move} camera", stacklevel=2)
+    return cameras
 
 
 def fit_view(camera: Camera, trajectory: Trajectory, margin: float = 0.06, samples: int = 20000) -> Camera:
@@ -341,8 +352,12 @@ def fit_view(camera: Camera, trajectory: Trajectory, margin: float = 0.06, sampl
 
     A camera that already keeps every frame in view is returned unchanged.
     """
-    step = max(1, trajectory.means.shape[1] // samples)
-    return camera.framing(trajectory.means[:, ::step].reshape(-1, 3), margin)
+    return camera.framing(_sampled(trajectory, samples).reshape(-1, 3), margin)
+
+
+def _sampled(trajectory: Trajectory, samples: int = 20000) -> np.ndarray:
+    """(T, M, 3) every k-th Gaussian's centre in each frame, about ``samples`` of them: enough to frame the motion."""
+    return trajectory.means[:, ::max(1, trajectory.means.shape[1] // samples)]
 
 
 def scene_compositor(target: LiftedTarget, *, inpaint: str = "fsr", detail: bool = True) -> SceneCompositor:
@@ -368,6 +383,16 @@ def frames_outside(gaussians: Gaussians, trajectory: Trajectory, cameras: Sequen
         uv, z = cam.project(trajectory.means[t].mean(axis=0, dtype=np.float64)[None])
         (u, v), z = uv[0], z[0]
         count += int(not (z > 0 and 0 <= u <= cam.width - 1 and 0 <= v <= cam.height - 1))
+    return count
+
+
+def frames_unseen(trajectory: Trajectory, cameras: Sequence[Camera]) -> int:
+    """How many frames show none of the object: every (sampled) Gaussian centre outside the image or behind."""
+    count = 0
+    for points, cam in zip(_sampled(trajectory), cameras):
+        uv, z = cam.project(points)
+        inside = (z > 0) & (uv >= 0).all(axis=1) & (uv <= [cam.width - 1, cam.height - 1]).all(axis=1)
+        count += not inside.any()
     return count
 
 

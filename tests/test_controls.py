@@ -1,16 +1,21 @@
 """Playback controls (looping, reversal, motion scales) and camera paths."""
 
 import json
+import warnings
 
 import numpy as np
 import pytest
-from test_transfer import prior_from_motion
+from test_transfer import cloud, prior_from_motion
 
 from marionette.camera import Camera
 from marionette.errors import InputError
+from marionette.gaussians import Gaussians
 from marionette.geometry import invert_transform, matrix_to_axis_angle, rotation_angle_deg
-from marionette.render.camera_path import camera_path, load_camera_path
+from marionette.pipeline import output_cameras
+from marionette.render.camera_path import camera_path, check_camera_move, load_camera_path
+from marionette.target.lift import LiftedTarget
 from marionette.transfer.controls import retime, scale_motion, source_times
+from marionette.transfer.velocity import integrate
 
 
 def turning_prior(frames=6):
@@ -62,10 +67,65 @@ def test_scale_motion_scales_angles_and_displacements():
     assert scale_motion(prior) is prior
 
 
+def travelling(shift, frames=40):
+    """A target cloud 20 radii away moved as a source object that turns and travels ``shift`` (radii) over
+    ``frames`` frames, with the target's reference camera."""
+    t = np.linspace(0.0, 1.0, frames)[:, None]
+    prior = prior_from_motion(t * [0.0, 0.8, 0.0], t * np.asarray(shift), centre=(0.0, 0.0, 20.0))
+    points = cloud(300, centre=(0.0, 0.0, 20.0), size=0.5)
+    gaussians = Gaussians.from_rgb(points, np.full((len(points), 3), 0.5), np.full(len(points), 0.05))
+    target = LiftedTarget(gaussians, Camera.from_fov(64, 48), np.ones((48, 64), bool),
+                          np.zeros((len(points), 2), np.int32))
+    return target, integrate(points, np.zeros(len(points), int), prior)
+
+
+def centre_pixels(trajectory, cameras):
+    """(T, 2) pixel and (T,) depth of the object's centre in each frame, seen by that frame's camera."""
+    seen = [cam.project(c[None]) for cam, c in zip(cameras, trajectory.means.mean(axis=1, dtype=np.float64))]
+    return np.array([uv[0] for uv, _ in seen]), np.array([z[0] for _, z in seen])
+
+
+@pytest.mark.parametrize("move, amount", [("orbit", 45.0), ("orbit", 180.0), ("dolly", 0.3), ("dolly", 0.6)])
+def test_camera_moves_keep_a_travelling_object_in_view(move, amount):
+    # Across the view and closer, as car-turn's car goes: a move about where it started left its centre out
+    # of view in the clip's second half.
+    target, trajectory = travelling([22.0, 0.0, -6.0])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no frame out of view to warn about
+        cameras = output_cameras(target, trajectory, move, amount)
+    uv, z = centre_pixels(trajectory, cameras)
+    assert (z > 0).all()
+    assert ((uv >= 0) & (uv <= [63, 47])).all()
+    static = output_cameras(target, trajectory)
+    if move == "orbit":  # still the turn asked for
+        turn = cameras[-1].world_to_camera[:3, :3] @ cameras[0].world_to_camera[:3, :3].T
+        assert rotation_angle_deg(turn) == pytest.approx(abs(amount))
+        assert cameras[0].center == pytest.approx(static[0].center)
+    else:  # nearer by the share asked for, the object's centre where the static camera shows it
+        centre = trajectory.means[-1].mean(axis=0, dtype=np.float64)
+        assert np.linalg.norm(cameras[-1].center - centre) == pytest.approx(
+            (1 - amount) * np.linalg.norm(static[-1].center - centre))
+        np.testing.assert_allclose(uv, centre_pixels(trajectory, static)[0], atol=1e-6)
+
+
+def test_frames_out_of_view_are_warned():
+    target, trajectory = travelling([0.0, 0.0, -60.0])  # it flies past the camera
+    with pytest.warns(UserWarning, match=r"nothing of the object is in view in \d+ of 40 frames of the static"):
+        output_cameras(target, trajectory)
+
+
+def test_camera_amounts_are_bounded():
+    assert check_camera_move("orbit", -360) == -360 and check_camera_move("dolly", 0.9) == 0.9
+    for move, amount in (("orbit", 1e9), ("orbit", 361.0), ("dolly", 0.95), ("dolly", -0.1), ("orbit", float("nan"))):
+        with pytest.raises(InputError, match=f"camera amount for {move} must be a number within"):
+            check_camera_move(move, amount)
+
+
 def test_orbit_and_dolly_paths():
     cam = Camera.from_fov(64, 48)
     centre = np.array([0.0, 0.0, 5.0])
-    orbit = camera_path(cam, centre, 9, "orbit", 40.0)
+    centres = np.tile(centre, (9, 1))
+    orbit = camera_path(cam, centres, "orbit", 40.0)
     assert len(orbit) == 9 and np.allclose(orbit[0].world_to_camera, cam.world_to_camera)
     distances = [np.linalg.norm(c.center - centre) for c in orbit]
     np.testing.assert_allclose(distances, 5.0)
@@ -73,11 +133,11 @@ def test_orbit_and_dolly_paths():
     assert rotation_angle_deg(turn) == pytest.approx(40.0)
     uv, _ = orbit[-1].project(centre[None])
     np.testing.assert_allclose(uv[0], [cam.cx, cam.cy], atol=1e-9)  # still looking at the centre
-    dolly = camera_path(cam, centre, 5, "dolly", 0.4)
+    dolly = camera_path(cam, centres[:5], "dolly", 0.4)
     assert np.linalg.norm(dolly[-1].center - centre) == pytest.approx(3.0)
-    assert all(c is cam for c in camera_path(cam, centre, 3, "static"))
+    assert all(c is cam for c in camera_path(cam, centres[:3], "static"))
     with pytest.raises(InputError, match="dolly"):
-        camera_path(cam, centre, 3, "dolly", 1.5)
+        camera_path(cam, centres[:3], "dolly", 1.5)
 
 
 def test_camera_path_file(tmp_path):

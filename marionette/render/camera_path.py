@@ -2,46 +2,65 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from ..camera import Camera, read_camera_json
 from ..errors import InputError
-from ..geometry import axis_angle_to_matrix, make_transform
+from ..geometry import axis_angle_to_matrix, invert_transform, make_transform, transform_points
 
-__all__ = ["CAMERA_MOVES", "camera_path", "check_camera_move", "load_camera_path"]
+__all__ = ["CAMERA_AMOUNTS", "CAMERA_MOVES", "camera_path", "check_camera_move", "keep_in_view", "load_camera_path"]
 
 #: Built-in camera moves and their default amount: orbit, degrees turned about the
-#: object's vertical axis over the clip; dolly, share of the distance to the
-#: object covered towards it.
+#: vertical axis through the object's path over the clip; dolly, share of the
+#: distance to the object covered towards it.
 CAMERA_MOVES = {"static": 0.0, "orbit": 30.0, "dolly": 0.3}
+#: The amounts that make sense: up to a full turn either way; up to nine tenths of the way
+#: (the object ten times larger), closer than that the camera is soon inside it.
+CAMERA_AMOUNTS = {"orbit": (-360.0, 360.0), "dolly": (0.0, 0.9)}
 
 
-def camera_path(camera: Camera, centre: np.ndarray, frames: int, move: str = "static",
-                amount: float | None = None) -> list[Camera]:
-    """``frames`` cameras that start at ``camera`` and ``move`` relative to ``centre`` (3,) (world).
+def camera_path(camera: Camera, centres: np.ndarray, move: str = "static", amount: float | None = None) -> list[Camera]:
+    """One camera per row of ``centres`` (T, 3), the object's centre in each frame (world), from ``camera``.
 
     ``orbit`` turns the camera about the vertical axis (the camera's y axis)
-    through ``centre`` by ``amount`` degrees (default 30) over the clip, eased
-    in and out; ``dolly`` moves it along its line of sight towards ``centre``
-    by ``amount`` (default 0.3) of the distance.
+    through the centre of the object's path (the mean of ``centres``) by
+    ``amount`` degrees (default 30) over the clip, eased in and out: an object
+    that travels is turned about with its path rather than swung out of view
+    (:func:`keep_in_view` then fits the turned path). ``dolly`` moves it
+    towards the object, ``amount`` (default 0.3) of the distance, following
+    it: the object grows while its centre stays where ``camera`` shows it.
     """
     amount = check_camera_move(move, amount)
     if move == "static":
-        return [camera] * frames
-    eased = 0.5 - 0.5 * np.cos(np.linspace(0.0, np.pi, frames))  # 0 → 1, slow at both ends
+        return [camera] * len(centres)
+    eased = 0.5 - 0.5 * np.cos(np.linspace(0.0, np.pi, len(centres)))  # 0 → 1, slow at both ends
     w2c = camera.world_to_camera
-    centre_cam = w2c[:3, :3] @ np.asarray(centre, dtype=np.float64) + w2c[:3, 3]
+    seen = transform_points(w2c, np.asarray(centres, dtype=np.float64))  # (T, 3) as the camera sees them
+    pivot = seen.mean(axis=0)
     path = []
-    for u in eased:
-        if move == "orbit":  # turn the world about the vertical axis through the centre, as the camera sees it
+    for u, centre in zip(eased, seen):
+        if move == "orbit":  # turn the world about the vertical axis through the pivot, as the camera sees it
             turn = axis_angle_to_matrix([0.0, np.radians(amount) * u, 0.0])
-            about = make_transform(turn, centre_cam - turn @ centre_cam)
-        else:  # dolly: the world comes towards the camera along the line of sight
-            about = make_transform(np.eye(3), -amount * u * centre_cam)
+            about = make_transform(turn, pivot - turn @ pivot)
+        else:  # dolly: the object comes towards the camera along its line of sight, so stays on its pixel
+            about = make_transform(np.eye(3), -amount * u * centre)
         path.append(camera.with_pose(about @ w2c))
     return path
+
+
+def keep_in_view(cameras: Sequence[Camera], points: np.ndarray, margin: float = 0.06) -> list[Camera]:
+    """``cameras`` (one intrinsics) zoomed out and re-centred alike, just enough that each keeps its frame's
+    ``points`` (T, M, 3) (world) in view; see :meth:`~marionette.camera.Camera.framing`."""
+    first = cameras[0]
+    back = invert_transform(first.world_to_camera)
+    # Each frame's points moved to where the first camera sees them as that frame's camera does.
+    seen = np.concatenate([transform_points(back @ cam.world_to_camera, p) for cam, p in zip(cameras, points)])
+    k = first.framing(seen, margin).K
+    return [replace(cam, K=k) for cam in cameras]
 
 
 def check_camera_move(move: str, amount: float | None = None) -> float:
@@ -49,9 +68,10 @@ def check_camera_move(move: str, amount: float | None = None) -> float:
     if move not in CAMERA_MOVES:
         raise InputError(f"camera must be one of {', '.join(CAMERA_MOVES)}, got {move!r}")
     amount = CAMERA_MOVES[move] if amount is None else float(amount)
-    if not np.isfinite(amount) or (move == "dolly" and not 0 <= amount < 1):
-        raise InputError(f"camera amount for {move} must be {'in [0, 1)' if move == 'dolly' else 'finite'}, "
-                         f"got {amount}")
+    lo, hi = CAMERA_AMOUNTS.get(move, (-np.inf, np.inf))
+    if not (np.isfinite(amount) and lo <= amount <= hi):
+        raise InputError(f"camera amount for {move} must be a number within {lo:g}..{hi:g}, got {amount:g}"
+                         if move in CAMERA_AMOUNTS else f"camera amount must be a number, got {amount}")
     return amount
 
 
