@@ -1,19 +1,18 @@
-"""Run every benchmark, then assemble ``docs/RESULTS.md`` from their pages and plots.
+"""Run every benchmark, then assemble ``docs/RESULTS.md``: a short summary of their pages.
 
 Each ``benchmarks/bench_*.py`` script (and ``paper_setting.py``) runs in its
 own process, in a fixed order; the ones that need ``../shared/data`` are
 skipped when it is absent, and a failing script does not stop the others.
 Each writes its page under ``docs/benchmarks/``; :func:`assemble` then
-gathers the pages into one report with a section per question (the paper's
-Table 1, pose accuracy, the paper's setting against its Table 2, rasterizer
-throughput, scaling), the machine and the date, and lists the pages that are
-missing as not run.
+writes the summary: the headline tables (the paper's Table 1, pose accuracy,
+speed) taken from their pages, with plots, and one line and a link for every
+page in ``docs/benchmarks/``. The detail stays on the pages.
 
     python benchmarks/run_all.py [--quick] [--only NAME,...] [--assemble-only]
 
 ``--quick`` runs small versions (a smoke test, minutes instead of an hour);
 they overwrite the pages like a full run, so re-run without it for figures
-worth keeping.
+worth keeping. ``--assemble-only`` runs nothing and rebuilds the summary.
 """
 
 from __future__ import annotations
@@ -67,32 +66,41 @@ BENCHES = (
     Bench("bench_scaling.py", "scaling.md", quick=("--quick",)),
 )
 
-#: RESULTS.md sections: title, one line on what it answers, pages in order.
-SECTIONS = (
-    ("Table 1: self-reconstruction, paper vs ours",
-     "The paper's Table 1 protocol on the real clips: the source object reconstructed from the clip (and, held"
-     " out, from its even frames only) or source frame 0 lifted alone, moved by the extracted prior, rendered"
-     " with the source camera and compared with the masked source frames on white; then the fit's iterations"
-     " against the figures they buy.", ("table1.md", "iterations.md")),
-    ("Pose accuracy on the synthetic suite",
-     "Rotation and centroid errors against exact ground truth, by motion type and tracking noise; rigid parts"
-     " found on the synthetic hinge; the accuracy of the tracks they come from; the focal length estimated from"
-     " the motion.",
-     ("extract.md", "tracks.md", "parts.md", "focal.md")),
-    ("Time and memory in the paper's setting",
-     "50 source frames at 854x480 and a 512x512 target, next to the paper's Table 2 (26.8 minutes on an RTX"
-     " A6000); peak memory on long videos.", ("paper_setting.md", "memory.md")),
+#: The summary's headline tables: title, what it shows, page, columns that find its table, columns shown.
+HEADLINES = (
+    ("Table 1: self-transfer on the real clips, paper vs ours",
+     "The paper's protocol (Sec. 5.2, `marionette eval-self`): the source object (*reconstruction*: fitted to"
+     " every frame; *held-out*: to the even frames, scored on the odd ones; *frame0*: source frame 0 lifted"
+     " alone, the paper's setting) moved by the extracted prior and rendered with the source camera, against"
+     " the masked source frames on white. *Masked PSNR* scores the object's pixels only.",
+     "table1.md", ("clip", "paper SpaT PSNR / SSIM / LPIPS"),
+     ("category", "clip", "target", "PSNR (dB)", "masked PSNR (dB)", "SSIM", "LPIPS",
+      "paper SpaT PSNR / SSIM / LPIPS")),
+    ("Pose accuracy on synthetic scenes",
+     "Median errors against exact ground truth over 3 seeds, per motion, without and with 1 px of noise on"
+     " the tracks; the centroid error is mostly the frame-0 centre's (*true centre*: the poses' own share).",
+     "extract.md", ("motion", "noise (px)", "median rotation (deg)"),
+     ("motion", "noise (px)", "median rotation (deg)", "median centroid (% radius)",
+      "median true centre (% radius)")),
+    ("Speed in the paper's setting",
+     "`marionette run` on 50 frames of car-turn (854x480) and a 512x512 photo, on two CPU cores, next to the"
+     " paper's Table 2 on an RTX A6000.",
+     "paper_setting.md", ("paper, RTX A6000", "ours, CPU"), None),
     ("Rasterizer throughput",
-     "Frames per second of the CPU rasterizer against the Gaussian count (scaling section: against the"
-     " resolution too).", ("rasterizer.md",)),
-    ("Scaling", "Time against source frames and target Gaussians, with the measured growth.", ("scaling.md",)),
-    ("Refinement ablation", "Each refinement step added in turn on a synthetic hinge and a real multi-part clip:"
-     " rigidity, boundary separation, detached seams, jerk.", ("ablation.md",)),
-    ("The same answer on every machine", "Extraction on the real clips under another BLAS kernel, numba compiling"
-     " for another CPU and NumPy without AVX-512: the poses each gives, against this machine's own.",
-     ("reproducibility_real.md",)),
-    ("More measurements", "Extraction on the real clips, automatic foreground, transfer speed.",
-     ("extract_real.md", "foreground.md", "transfer.md")),
+     "Median frame time of the CPU rasterizer at 512x512 against the Gaussian count.",
+     "rasterizer.md", ("Gaussians", "fps"), ("Gaussians", "ms / frame", "fps")),
+)
+
+#: The summary's list of pages: group title, pages in order. A page in no group is listed under "More".
+GROUPS = (
+    ("Quality against the paper", ("table1.md", "iterations.md", "coarse_to_fine.md", "ssim_loss.md",
+                                   "reconstruct.md", "align.md", "align_real.md")),
+    ("Motion extraction", ("extract.md", "tracks.md", "parts.md", "focal.md", "bundle.md", "recover.md",
+                           "lid_information.md", "lid_relief.md", "extract_real.md", "foreground.md", "prompt.md",
+                           "reproducibility_real.md")),
+    ("The target, the transfer and the scene", ("lift.md", "scene.md", "ablation.md", "transfer.md")),
+    ("Speed and memory", ("paper_setting.md", "rasterizer.md", "rasterizer_grad.md", "scaling.md", "memory.md",
+                          "first_run.md", "suite.md", "app.md")),
 )
 
 
@@ -106,33 +114,6 @@ def machine() -> dict[str, str]:
         pass
     return {"CPU": cpu, "cores": str(os.cpu_count()), "Python": platform.python_version(),
             "OS": f"{platform.system()} {platform.release()}"}
-
-
-def _shift_headings(text: str, levels: int) -> str:
-    """Demote every markdown heading outside code fences by ``levels``."""
-    out, fenced = [], False
-    for line in text.splitlines():
-        fenced ^= line.startswith("```")
-        out.append("#" * levels + line if not fenced and re.match(r"#+ ", line) else line)
-    return "\n".join(out)
-
-
-def _relink(text: str, page_dir: Path, out_dir: Path) -> str:
-    """Rewrite relative link targets of a page in ``page_dir`` so they work from ``out_dir``."""
-    def fix(match: re.Match) -> str:
-        target = match.group(2)
-        if re.match(r"[a-z]+:|#|/", target):
-            return match.group(0)
-        return f"{match.group(1)}({os.path.relpath(page_dir / target, out_dir)})"
-    return re.sub(r"(!?\[[^\]]*\])\(([^)\s]+)\)", fix, text)
-
-
-def page_body(path: Path, out_dir: Path) -> str:
-    """A page without its title line, headings demoted under a section, links valid from ``out_dir``."""
-    lines = path.read_text().strip().splitlines()
-    if lines and lines[0].startswith("# "):
-        lines = lines[1:]
-    return _relink(_shift_headings("\n".join(lines).strip(), 2), path.parent, out_dir)
 
 
 def markdown_tables(text: str) -> list[list[list[str]]]:
@@ -277,34 +258,60 @@ def plot_table1(page: Path, path: Path) -> bool:
     return True
 
 
+def markdown_table(rows: list[list[str]]) -> list[str]:
+    """Rows of cells (header first) → the lines of a pipe table."""
+    return [f"| {' | '.join(rows[0])} |", "|" + "---|" * len(rows[0]), *[f"| {' | '.join(r)} |" for r in rows[1:]]]
+
+
+def headline_table(text: str, find: tuple[str, ...], show: tuple[str, ...] | None) -> list[str] | None:
+    """The first table of ``text`` whose header has the ``find`` columns, cut to the ``show`` columns (None:
+    all), as pipe-table lines; None when the page has no such table."""
+    table = next((t for t in markdown_tables(text) if set(find) <= set(t[0])), None)
+    if table is None:
+        return None
+    keep = [table[0].index(c) for c in show if c in table[0]] if show else range(len(table[0]))
+    return markdown_table([[row[i] if i < len(row) else "" for i in keep] for row in table])
+
+
+def page_title(path: Path) -> str:
+    """A page's first ``# `` heading, else its file name."""
+    first = path.read_text().lstrip().partition("\n")[0]
+    return first[2:].strip() if first.startswith("# ") else path.name
+
+
 def assemble(bench_dir: Path, out: Path, images: Path, *, info: dict[str, str], date: str,
              skipped: dict[str, str] | None = None) -> str:
-    """Write ``out`` (RESULTS.md) from the pages in ``bench_dir``, and summary plots to ``images``; its text.
+    """Write ``out`` (RESULTS.md), a summary of the pages in ``bench_dir``, and its plots to ``images``; its text.
 
     Parameters
     ----------
     bench_dir : Path
-        Folder of the benchmark pages (``table1.md``, ``extract.md``, …).
+        Folder of the benchmark pages (``table1.md``, ``extract.md``, …); every ``*.md`` in it is linked.
     out : Path
-        The report to write; links in the pages are rewritten relative to it.
+        The summary to write; links are relative to it.
     images : Path
         Folder for the plots drawn from the pages' tables.
     info : dict
         Machine description (name → value), shown as a table.
     date : str
-        When the benchmarks ran.
+        When the summary was assembled.
     skipped : dict, optional
         Script → reason, for scripts skipped or failed in this run.
     """
     skipped = skipped or {}
     bench_dir, out, images = bench_dir.resolve(), out.resolve(), images.resolve()
-    pages = [page for _, _, section_pages in SECTIONS for page in section_pages]
-    missing = [page for page in pages if not (bench_dir / page).is_file()]
+    pages = sorted(p.name for p in bench_dir.glob("*.md"))
     script_of = {b.page: b.script for b in BENCHES}
+    missing = [b.page for b in BENCHES if b.page not in pages]
+
+    def link(page: str) -> str:
+        return os.path.relpath(bench_dir / page, out.parent)
+
     lines = ["# Results", "",
-             f"Produced by `python benchmarks/run_all.py` on {date}. Each section gathers the pages that the"
-             " benchmark scripts write under `docs/benchmarks/`; every page starts with the command that"
-             " reproduces it. Wall times come from a shared machine and vary from run to run.", "",
+             f"A summary of the benchmark pages in `docs/benchmarks/`, assembled by `python benchmarks/run_all.py"
+             f" --assemble-only` on {date}: the headline tables, then one line and a link per page. Every page"
+             " starts with the command that reproduces it; wall times come from a shared machine and vary from"
+             " run to run.", "",
              "| machine | |", "|---|---|", *[f"| {k} | {v} |" for k, v in info.items()], ""]
     stale = [script for script in skipped if script not in (script_of[page] for page in missing)]
     if missing or stale:
@@ -316,32 +323,31 @@ def assemble(bench_dir: Path, out: Path, images: Path, *, info: dict[str, str], 
     plots = {}  # page → a plot drawn from its table
     for page, draw, name in (("table1.md", plot_table1, "table1.png"),
                              ("extract.md", plot_pose_accuracy, "pose_accuracy.png")):
-        if (bench_dir / page).is_file() and draw(bench_dir / page, images / name):
+        if page in pages and draw(bench_dir / page, images / name):
             plots[page] = images / name
-    lines += ["Contents:", ""] + [f"{i}. [{title}](#{_anchor(title)})" for i, (title, _, _) in
-                                  enumerate(SECTIONS, 1)] + [""]
-    for title, summary, section_pages in SECTIONS:
-        lines += [f"## {title}", "", summary, ""]
-        for page in section_pages:
-            path = bench_dir / page
-            if path.is_file():
-                first = path.read_text().lstrip().partition("\n")[0]
-                heading = first[2:].strip() if first.startswith("# ") else page
-                lines += [f"### {heading}", "", f"Page: [`{page}`]({os.path.relpath(path, out.parent)})", ""]
-                if page in plots:
-                    lines += [f"![{heading}]({os.path.relpath(plots[page], out.parent)})", ""]
-                lines += [page_body(path, out.parent), ""]
-            else:
-                lines += [f"_Not run: `{page}` is missing (`python benchmarks/{script_of[page]}`)._", ""]
+    for title, summary, page, find, show in HEADLINES:
+        lines += [f"## {title}", ""]
+        table = headline_table((bench_dir / page).read_text(), find, show) if page in pages else None
+        if table is None:
+            lines += [f"_Not run: `{page}` is missing or has no such table"
+                      f" (`python benchmarks/{script_of.get(page, page)}`)._", ""]
+            continue
+        lines += [summary, ""]
+        if page in plots:
+            lines += [f"![{title}]({os.path.relpath(plots[page], out.parent)})", ""]
+        lines += [*table, "", f"Details: [`{page}`]({link(page)}).", ""]
+    lines += ["## Every benchmark page", ""]
+    grouped = {page for _, group in GROUPS for page in group}
+    for title, group in (*GROUPS, ("More", tuple(p for p in pages if p not in grouped))):
+        listed = [page for page in group if page in pages]
+        if listed:
+            lines += [f"**{title}**", ""]
+            lines += [f"- [`{page}`]({link(page)}): {page_title(bench_dir / page)}" for page in listed]
+            lines.append("")
     text = "\n".join(lines).rstrip() + "\n"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(text)
     return text
-
-
-def _anchor(title: str) -> str:
-    """GitHub's heading anchor: lower case, punctuation dropped, spaces as hyphens."""
-    return re.sub(r"[^\w\- ]", "", title.lower()).replace(" ", "-")
 
 
 def run_benches(benches: list[Bench], quick: bool) -> dict[str, str]:
@@ -371,7 +377,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="small, fast versions of every benchmark")
     parser.add_argument("--only", help="comma-separated script names (without .py) to run")
-    parser.add_argument("--assemble-only", action="store_true", help="run nothing; rebuild RESULTS.md")
+    parser.add_argument("--assemble-only", action="store_true", help="run nothing; rebuild RESULTS.md from the pages")
     args = parser.parse_args()
     benches = list(BENCHES)
     if args.only:

@@ -58,6 +58,16 @@ Extraction grows as T^1.05 (FAKE-SCALING-MARKER).
 """
 
 
+PAPER_SETTING_PAGE = """# The paper's setting end to end
+
+| stage (paper's Table 2 rows) | paper, RTX A6000 | ours, CPU | ratio |
+|---|---:|---:|---:|
+| **total** | **26.8 min** | **42.0 s** | **38×** |
+"""
+
+DOCS = Path(__file__).resolve().parents[1] / "docs"
+
+
 @pytest.fixture(scope="module")
 def report(tmp_path_factory):
     tmp_path = tmp_path_factory.mktemp("report")
@@ -66,41 +76,61 @@ def report(tmp_path_factory):
     (bench / "extract.md").write_text(EXTRACT_PAGE)
     (bench / "scaling.md").write_text(SCALING_PAGE)
     (bench / "table1.md").write_text(TABLE1_PAGE)
-    (bench / "paper_setting.md").write_text("# The paper's setting end to end\n\n| total | 42.0 s |\n")
+    (bench / "paper_setting.md").write_text(PAPER_SETTING_PAGE)
+    (bench / "new_question.md").write_text("# A page in no group\n\nFAKE-DETAIL-MARKER\n")
     out = tmp_path / "docs" / "RESULTS.md"
     text = run_all.assemble(bench, out, tmp_path / "docs" / "images" / "results", info={"CPU": "Test CPU 9000"},
                             date="2026-01-02 03:04 UTC", skipped={"bench_memory.py": "failed (exit code 1)"})
     return text, out, tmp_path
 
 
-def test_assemble_has_every_section_and_the_machine(report):
+def test_assemble_has_the_headline_tables_and_the_machine(report):
     text, out, _ = report
     assert out.read_text() == text
-    for title, _, _ in run_all.SECTIONS:
+    for title, *_ in run_all.HEADLINES:
         assert f"\n## {title}\n" in text
     assert "Test CPU 9000" in text and "2026-01-02 03:04 UTC" in text
+    table1 = text[text.index("\n## Table 1"):text.index("\n## Pose accuracy")]
+    assert "| single-slow | davis_car-shadow | 21.94 | 0.948 | skipped | 19.08 / 0.95 / 0.09 |" in table1
+    pose = text[text.index("\n## Pose accuracy"):text.index("\n## Speed")]
+    assert "| hinge | 1 | 0.18 | 5.03 |" in pose  # the summary table, cut to the columns shown
+    assert "| translation | 0 | 0.47 | 0.00 | 6.09 |" not in pose  # not the exact-track table
+    assert "| **total** | **26.8 min** | **42.0 s** | **38×** |" in text
+    assert "_Not run: `rasterizer.md` is missing" in text
 
 
-def test_assemble_includes_pages_under_their_sections(report):
-    text, _, _ = report
-    scaling = text.index("\n## Scaling\n")
-    assert text.index("FAKE-SCALING-MARKER") > scaling
-    pose, paper = text.index("\n## Pose accuracy"), text.index("\n## Time and memory")
-    assert pose < text.index("\n#### Summary\n") < paper  # the page's "## Summary", two levels down
-    assert "| total | 42.0 s |" in text[paper:]
-    # The page's link (relative to docs/benchmarks/) now works from docs/.
-    assert "](images/results/scaling_frames.png)" in text and "../images/results/scaling_frames.png" not in text
+def test_assemble_links_every_page_once_and_keeps_the_detail_there(report):
+    text, _, tmp_path = report
+    for page in (tmp_path / "docs" / "benchmarks").glob("*.md"):
+        assert text.count(f"](benchmarks/{page.name})") == 1 + (f"Details: [`{page.name}`]" in text), page.name
+    assert "- [`new_question.md`](benchmarks/new_question.md): A page in no group" in text
+    assert "FAKE-DETAIL-MARKER" not in text and "FAKE-SCALING-MARKER" not in text
 
 
 def test_assemble_lists_missing_pages_as_not_run(report):
     text, _, _ = report
-    not_run = text[text.index("Not run:"):text.index("Contents:")]
+    not_run = text[text.index("Not run:"):text.index("\n## ")]
     assert "`memory.md` (`benchmarks/bench_memory.py`): failed (exit code 1)" in not_run
     assert "`rasterizer.md` (`benchmarks/bench_rasterizer.py`): no page yet" in not_run
     for page in ("table1.md", "extract.md", "scaling.md", "paper_setting.md"):
         assert f"`{page}`" not in not_run
-    paper = text[text.index("\n## Time and memory"):text.index("\n## Rasterizer")]
-    assert "_Not run: `memory.md` is missing" in paper
+
+
+def test_the_summary_of_the_real_pages_is_short_and_links_them_all(tmp_path):
+    """The pages in the repository, assembled: at most 15 KB, every page linked, the headline tables there.
+    Also the committed RESULTS.md links every page (it was re-assembled since a page was added)."""
+    bench = tmp_path / "docs" / "benchmarks"
+    bench.mkdir(parents=True)
+    for page in (DOCS / "benchmarks").glob("*.md"):
+        (bench / page.name).write_text(page.read_text())
+    text = run_all.assemble(bench, tmp_path / "docs" / "RESULTS.md", tmp_path / "docs" / "images" / "results",
+                            info=run_all.machine(), date="now")
+    assert len(text.encode()) <= 15_000
+    assert "_Not run:" not in text  # every headline table found on its page
+    committed = (DOCS / "RESULTS.md").read_text()
+    assert len(committed.encode()) <= 15_000
+    for page in (DOCS / "benchmarks").glob("*.md"):
+        assert f"](benchmarks/{page.name})" in text and f"](benchmarks/{page.name})" in committed, page.name
 
 
 @pytest.mark.parametrize("name", ["pose_accuracy.png", "table1.png"])
