@@ -50,7 +50,11 @@ use it depend on its future. ``manifest.json`` keeps a hash of each
 finished output's options and input files (name, size, mtime): on a re-run
 an output whose hash still matches is skipped, a prior whose hash matches is
 read back instead of extracted. A failed job is recorded in the results with
-its one-line error; the others carry on.
+its one-line error; the others carry on (``marionette batch`` then exits
+with code 1).
+
+Ctrl-C (or SIGTERM) stops the batch: the cluster is closed, finished
+outputs stay, the temporaries of unfinished ones are removed.
 """
 
 from __future__ import annotations
@@ -63,6 +67,7 @@ import json
 import logging
 import math
 import re
+import signal
 import time
 import tomllib
 import uuid
@@ -80,7 +85,7 @@ from .io.atomic import check_output_dir, leftover_temporaries, write_text
 from .options import parse_background, parse_focal, parse_part_seeds, parse_parts, parse_size
 from .prior import MOTION_FRAMES, SpatPrior
 from .progress import Reporter
-from .render.camera_path import CAMERA_MOVES
+from .render.camera_path import CAMERA_MOVES, check_camera_move
 from .source import ExtractOptions
 from .transfer.controls import LOOPS
 
@@ -328,6 +333,10 @@ def read_jobs(jobs_file: str | Path, output: str | Path | None = None) -> Batch:
         names.add(name.lower())
         target_path, target_options = targets[target]["path"], {k: v for k, v in targets[target].items() if k != "path"}
         options = transfer_defaults | target_options | pair
+        try:
+            check_camera_move(options["camera"], options["camera_amount"])
+        except InputError as e:
+            raise reader.fail(where, str(e)) from None
         jobs.append(Job(name, source, target, target_path, options,
                         _inside(folder, folder / f"{name}.{options['format']}", reader, "output")))
     return Batch(folder, checked_sources, jobs)
@@ -464,12 +473,25 @@ def local_cluster(workers: int = 2):
 
     Its processes log only critical errors: a failed task comes back to the
     client, which reports it as one line, so the workers' own log of it (a
-    traceback) would only repeat it.
+    traceback) would only repeat it. Its threads and processes keep SIGINT
+    blocked: Ctrl-C in a terminal reaches the whole process group, and only
+    the client should take it (it closes the cluster); a worker would die
+    with a traceback and its task be run again.
     """
+    from multiprocessing import resource_tracker
+
     from distributed import LocalCluster
 
-    return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                        dashboard_address="127.0.0.1:0", silence_logs=logging.CRITICAL)
+    # A new thread or process inherits its creator's signal mask: the cluster's event loop thread, which
+    # starts (and restarts) the workers, and the workers' own threads and subprocesses. Starting
+    # multiprocessing's resource tracker unblocks SIGINT in the thread that starts it: started here, first.
+    resource_tracker.ensure_running()
+    blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                            dashboard_address="127.0.0.1:0", silence_logs=logging.CRITICAL)
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
 
 
 def _client(scheduler: str | None, workers: int, stack: contextlib.ExitStack):
@@ -528,7 +550,9 @@ def run_batch(jobs_file: str | Path, scheduler: str | None = None, workers: int 
     pending = [job for job in batch.jobs if job.name not in results]
 
     try:
-        with reporter.stage("batch jobs", len(batch.jobs)) as progress, contextlib.ExitStack() as stack:
+        # The client only waits for the cluster: Ctrl-C must raise at once, not at a progress call.
+        with (reporter.stage("batch jobs", len(batch.jobs), defer_interrupt=False) as progress,
+              contextlib.ExitStack() as stack):
             progress(len(results), len(batch.jobs))
             if pending:
                 client = stack.enter_context(_client(scheduler, workers, stack))

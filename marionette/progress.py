@@ -5,7 +5,8 @@ raises :class:`KeyboardInterrupt` at its next progress call or at its end.
 The default handler would raise it wherever Python next runs, which can be
 inside a call back from compiled (numba) code or half-way through a pipe
 write, and an interrupted parallel kernel has crashed the process (SIGSEGV)
-instead of exiting with code 130.
+instead of exiting with code 130. Under :func:`sigterm_as_interrupt` (the
+command line) SIGTERM is a Ctrl-C too, so ``kill`` cleans up as Ctrl-C does.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from collections.abc import Callable, Iterator
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-__all__ = ["Reporter", "ProgressCallback", "interrupt_requested"]
+__all__ = ["Reporter", "ProgressCallback", "interrupt_requested", "sigterm_as_interrupt"]
 
 #: ``callback(done, total)``, called as work advances.
 ProgressCallback = Callable[[int, int], None]
@@ -34,17 +35,34 @@ def interrupt_requested() -> bool:
 
 
 @contextlib.contextmanager
-def _deferred_interrupt() -> Iterator[None]:
-    """SIGINT only sets the flag while this runs (main thread, Python's own handler in place; else a no-op)."""
+def sigterm_as_interrupt() -> Iterator[None]:
+    """SIGTERM raises KeyboardInterrupt while this runs, as Ctrl-C does (main thread and SIGTERM at its
+    default; else a no-op): outputs staged, temporary folders and cluster workers are then cleaned up."""
     if (threading.current_thread() is not threading.main_thread()
-            or signal.getsignal(signal.SIGINT) is not signal.default_int_handler):
+            or signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL):
         yield
         return
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: _interrupt.set())
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+@contextlib.contextmanager
+def _deferred_interrupt() -> Iterator[None]:
+    """SIGINT and SIGTERM only set the flag while this runs where they would raise KeyboardInterrupt (main
+    thread, Python's own handler in place; else a no-op)."""
+    deferred = [s for s in (signal.SIGINT, signal.SIGTERM) if signal.getsignal(s) is signal.default_int_handler]
+    if threading.current_thread() is not threading.main_thread() or not deferred:
+        yield
+        return
+    previous = {s: signal.signal(s, lambda signum, frame: _interrupt.set()) for s in deferred}
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
 
 
 def _raise_if_interrupted() -> None:
@@ -86,15 +104,19 @@ class Reporter:
             self.console.print(text, highlight=False, style="dim", soft_wrap=True)
 
     @contextlib.contextmanager
-    def stage(self, description: str, total: int | None = None) -> Iterator[ProgressCallback]:
+    def stage(self, description: str, total: int | None = None, *,
+              defer_interrupt: bool = True) -> Iterator[ProgressCallback]:
         """A progress bar for one stage; yields a ``(done, total)`` callback.
 
         On a terminal the bar is live (and erased if the stage fails); in a
         log (stderr redirected) each finished stage is one line.
+        ``defer_interrupt=False`` lets Ctrl-C raise where it lands, for a
+        stage that only waits for other processes (which may never call
+        back).
         """
         start = time.perf_counter()
         try:
-            with _deferred_interrupt():
+            with _deferred_interrupt() if defer_interrupt else contextlib.nullcontext():
                 if self.quiet or not sys.stderr:
                     yield _checked(lambda done, total: None)
                 elif self.console.is_terminal:

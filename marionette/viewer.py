@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import contextlib
 import io
-import socket
 import sys
 import threading
 import time
@@ -23,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import viser
 
+from .address import check_address, port_in_use
 from .errors import InputError
 from .gaussians import Gaussians
 from .geometry import quaternion_to_matrix
@@ -95,8 +95,7 @@ class Viewer:
     server : viser.ViserServer
     num_frames : int
     url : str
-        Address of the page (the port may be higher than asked for when
-        that one was taken).
+        Address of the page.
     """
 
     def __init__(self, server: viser.ViserServer, frame: FrameFn, num_frames: int, fps: float,
@@ -177,16 +176,6 @@ def _place_camera(server: viser.ViserServer, means: np.ndarray) -> None:
     cam.near, cam.far = 0.01 * distance, 100.0 * (distance + radius)
 
 
-def _check_host(host: str) -> None:
-    """Raise InputError unless ``host`` is an address of this machine (viser would wait forever)."""
-    try:
-        family = socket.getaddrinfo(host, 0, type=socket.SOCK_STREAM)[0][0]
-        with socket.socket(family, socket.SOCK_STREAM) as s:
-            s.bind((host, 0))
-    except (OSError, UnicodeError) as e:
-        raise InputError(f"cannot listen on host {host!r} ({getattr(e, 'strerror', None) or e})") from None
-
-
 def serve(source: Source, host: str = "127.0.0.1", port: int = 8080, *, fps: float | None = None,
           autoplay: bool = True, verbose: bool = False) -> Viewer:
     """Start a viewer for ``source`` and return it at once; call ``.stop()`` when done.
@@ -197,14 +186,13 @@ def serve(source: Source, host: str = "127.0.0.1", port: int = 8080, *, fps: flo
         ``.ply`` files or one ``.ply``, a :class:`SplatAnimation`, or a sequence of Gaussians
         (one per frame, all of the same size).
     host, port : where to listen; only this machine can connect by default.
-        Port 0 picks a free port; a taken port is replaced by the next free one.
+        Port 0 picks a free port; a port in use is an error (not replaced by another).
     fps : playback rate; default the animation's own (``DEFAULT_FPS`` for .ply frames).
     autoplay : start playing at once.
     verbose : let viser print its banner (on stderr) and connection messages.
     """
-    if not 0 <= int(port) <= 65535:
-        raise InputError(f"port must be in 0..65535 (0: any free port), got {port}")
-    _check_host(host)
+    port = int(port)
+    check_address(host, port)
     if isinstance(source, (str, Path)):
         source = load_source(source)
     if isinstance(source, SplatAnimation):
@@ -218,7 +206,10 @@ def serve(source: Source, host: str = "127.0.0.1", port: int = 8080, *, fps: flo
     if not (np.isfinite(fps) and fps > 0):
         raise InputError(f"fps must be a positive number, got {fps}")
     with contextlib.redirect_stdout(sys.stderr if verbose else io.StringIO()):  # stdout may hold a JSON summary
-        server = viser.ViserServer(host=host, port=int(port), verbose=verbose)
+        server = viser.ViserServer(host=host, port=port, verbose=verbose)
+    if port not in (0, server.get_port()):  # taken since the check: viser moved to the next free one
+        server.stop()
+        raise port_in_use(port)
     return Viewer(server, frame, num_frames, fps, autoplay)
 
 

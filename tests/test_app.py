@@ -239,3 +239,51 @@ def test_a_bad_upload_after_a_good_one_leaves_none_behind(app, inputs):
     assert call(app, f"/api/upload?session={session}&kind=target&name=photo.png", b"not a picture")[0] == 400
     status, reply = call(app, f"/api/mask?session={session}&kind=target", {"points": [[10, 10]]})
     assert status == 400 and reply["error"] == "upload the photo first"
+
+
+@pytest.mark.parametrize("port", ["99999", "-1"])
+def test_a_bad_port_is_one_line_and_leaves_no_work_folder(tmp_path, monkeypatch, capsys, port):
+    import tempfile
+
+    from marionette.cli import main
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # where the app makes its work folder
+    assert main(["app", "--port", port]) == 2
+    assert capsys.readouterr().err.strip() == f"error: port must be in 0..65535 (0: any free port), got {port}"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_port_in_use_is_an_error_naming_it(tmp_path, monkeypatch, capsys):
+    import socket
+    import tempfile
+
+    from marionette.cli import main
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    with socket.create_server(("127.0.0.1", 0)) as busy:
+        port = busy.getsockname()[1]
+        assert main(["app", "--port", str(port)]) == 2
+    assert capsys.readouterr().err.strip() == f"error: port {port} is in use; --port 0 picks a free one"
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("signum, group", [(signal.SIGINT, True), (signal.SIGTERM, False)], ids=["ctrl-c", "kill"])
+def test_the_app_removes_its_own_work_folder_when_stopped(tmp_path, signum, group):
+    """Ctrl-C (SIGINT to the process group) and ``kill`` (SIGTERM to the command) alike."""
+    proc = subprocess.Popen([sys.executable, "-m", "marionette", "app", "--port", "0", "--json"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            env={**os.environ, "TMPDIR": str(tmp_path)},
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    try:
+        lines = []
+        while lines[-1:] != ["}\n"]:
+            lines.append(proc.stdout.readline())
+            assert lines[-1], proc.stderr.read()
+        workdir = json.loads("".join(lines))["figures"]["workdir"]
+        assert [str(p) for p in tmp_path.iterdir()] == [workdir]
+    finally:
+        (os.killpg if group else os.kill)(proc.pid, signum)
+        _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert err.strip().splitlines() == ["error: interrupted"]
+    assert list(tmp_path.iterdir()) == []

@@ -2,6 +2,10 @@
 
 import csv
 import os
+import signal
+import subprocess
+import sys
+import time
 
 import cv2
 import numpy as np
@@ -178,6 +182,48 @@ path = "disc.png"
     assert read_video(inputs / "default-output" / "spin__disc.mp4").frames.shape[0] == 3
 
 
+def test_ctrl_c_stops_the_batch_keeping_finished_outputs_only(inputs):
+    """Ctrl-C in a terminal (SIGINT to the process group, workers included) ends the command at once."""
+    jobs = write_jobs(inputs, '''output = "interrupted"
+[defaults]
+max_side = 96
+[[source]]
+path = "spin.mp4"
+masks = "spin_masks"
+[[target]]
+path = "disc.png"
+name = "quick"
+frames = 3
+[[target]]
+path = "disc.png"
+name = "endless"
+frames = 5000
+''', "interrupted.toml")
+    out = inputs / "interrupted"
+    # Its own session with SIGINT at its default, as in a terminal (see test_interrupt.py).
+    proc = subprocess.Popen([sys.executable, "-m", "marionette", "batch", str(jobs), "--workers", "2"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    deadline = time.monotonic() + 300
+    while not ((out / "spin__quick.mp4").is_file() and [*out.glob(".spin__endless.*.tmp.mp4")]):
+        assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()[1] if proc.poll() else "slow"
+        time.sleep(0.05)
+    workers = psutil.Process(proc.pid).children(recursive=True)
+    os.killpg(proc.pid, signal.SIGINT)
+    try:
+        _, err = proc.communicate(timeout=60)  # it used to wait for ever, a second Ctrl-C ignored
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, err
+    assert err.strip().splitlines()[-1] == "error: interrupted"
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
+    assert psutil.wait_procs(workers, timeout=10)[1] == []  # no worker left running
+    assert sorted(p.name for p in out.iterdir()) == ["manifest.json", "priors", "spin__quick.mp4"]
+    assert [p.name for p in (out / "priors").iterdir()] == ["spin.npz"]
+    assert read_video(out / "spin__quick.mp4").frames.shape[0] == 3
+
+
 @pytest.mark.parametrize("text, message", [
     ("output = 'x'\n[[source]\n", "not valid TOML"),
     ("colour = 1\n" + SOURCES + TARGETS, "unknown key 'colour'"),
@@ -187,6 +233,8 @@ path = "disc.png"
     ("[defaults]\nbackground = [300, 0, 0]\n" + SOURCES + TARGETS, "background must be"),
     ("[defaults]\nsize = '8x8'\n" + SOURCES + TARGETS, "size must be"),
     ("[defaults]\nfocal = 'wide'\n" + SOURCES + TARGETS, "focal must be 'auto' or a positive number"),
+    ("[defaults]\ncamera = 'orbit'\ncamera_amount = 1e3\n" + SOURCES + TARGETS,
+     "camera amount for orbit must be a number within -360..360"),
     (SOURCES + TARGETS + "[[job]]\nsource = 'spin'\ntarget = 'box'\nparts = 2\n", "parts cannot be set here"),
     (SOURCES + TARGETS + "[[job]]\nsource = 'spin'\ntarget = 'teapot'\n", "target 'teapot' is not"),
     (SOURCES + TARGETS + "[[job]]\nsource = ['spin']\ntarget = 'box'\n", "source ['spin'] is not"),
@@ -295,3 +343,12 @@ path = "broken.png"
         "spin__disc": ("ran", "spin__disc.mp4"), "spin__broken": ("failed", "")}
     assert (folder / "spin__disc.mp4").is_file()
     assert "spin__broken.mp4" not in (folder / "results.md").read_text()
+
+
+def test_exit_code_1_for_failed_jobs_is_documented(capsys):
+    import marionette.batch
+    from marionette.cli import main
+
+    assert "exits with code 1" in " ".join(marionette.batch.__doc__.split())
+    assert main(["batch", "--help"]) == 0
+    assert "Exit code 1 if some job failed" in " ".join(capsys.readouterr().out.split())

@@ -15,7 +15,9 @@ from marionette.pipeline import write_ply_frames
 from marionette.trajectory import Trajectory
 
 
-def test_ctrl_c_while_rendering_leaves_nothing_partial(tmp_path, prior_file, target_png):
+@pytest.mark.parametrize("signum, group", [(signal.SIGINT, True), (signal.SIGTERM, False)], ids=["ctrl-c", "kill"])
+def test_an_interrupt_while_rendering_leaves_nothing_partial(tmp_path, prior_file, target_png, signum, group):
+    """Ctrl-C (SIGINT to the process group, ffmpeg too) and ``kill`` (SIGTERM to the command alone) alike."""
     out = tmp_path / "out.mp4"
     out.write_bytes(b"an earlier result")
     before = sorted(p.name for p in tmp_path.iterdir())
@@ -32,7 +34,7 @@ def test_ctrl_c_while_rendering_leaves_nothing_partial(tmp_path, prior_file, tar
         assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read() if proc.poll() else "slow"
         time.sleep(0.05)
     time.sleep(0.5)
-    os.killpg(proc.pid, signal.SIGINT)
+    (os.killpg if group else os.kill)(proc.pid, signum)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130, err
     assert err.strip().splitlines()[-1] == "error: interrupted"
@@ -141,24 +143,26 @@ def test_staged_outputs_are_put_in_place_together_or_not_at_all(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt", "b.txt", "mine"]
 
 
-def test_ctrl_c_in_a_stage_is_raised_at_its_next_progress_call_not_where_it_lands():
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
+def test_an_interrupt_in_a_stage_is_raised_at_its_next_progress_call_not_where_it_lands(signum):
     from marionette import progress
-    from marionette.progress import Reporter
+    from marionette.progress import Reporter, sigterm_as_interrupt
 
     inherited = signal.signal(signal.SIGINT, signal.default_int_handler)  # a background shell may ignore it
     try:
         reporter = Reporter(quiet=True)
         reached = []
-        with pytest.raises(KeyboardInterrupt):
+        with sigterm_as_interrupt(), pytest.raises(KeyboardInterrupt):  # as main() runs every command
             with reporter.stage("work", 3) as step:
                 step(1, 3)
-                os.kill(os.getpid(), signal.SIGINT)
+                os.kill(os.getpid(), signum)
                 time.sleep(0.05)  # the handler has run: had it raised, the next line would not
                 reached.append("after the signal")
                 step(2, 3)
                 reached.append("after the next progress call")
         assert reached == ["after the signal"]
         assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored after the stage
+        assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # and SIGTERM after the command
         assert not progress.interrupt_requested()  # raised once: the next stage runs
         with reporter.stage("more", 1) as step:
             step(1, 1)

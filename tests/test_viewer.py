@@ -228,6 +228,30 @@ def test_serve_rejects_bad_options():
         serve(anim, port=0, fps=-1)
 
 
+@pytest.mark.parametrize("port", ["-1", "99999"])
+def test_view_command_rejects_a_bad_port_before_loading(tmp_path, capsys, port):
+    from marionette.cli import main
+
+    assert main(["view", str(tmp_path / "missing.npz"), "--port", port]) == 2
+    assert capsys.readouterr().err.strip() == f"error: port must be in 0..65535 (0: any free port), got {port}"
+
+
+def test_a_port_in_use_is_an_error_not_another_port(tmp_path, capsys):
+    """As ``marionette app`` does: it used to serve on the next free port."""
+    import socket
+
+    from marionette.cli import main
+
+    anim = _animation(n=20, t_count=2)
+    write_splat_animation(tmp_path / "a.npz", anim.gaussians, anim.trajectory, anim.fps)
+    with socket.create_server(("127.0.0.1", 0)) as busy:
+        port = busy.getsockname()[1]
+        with pytest.raises(InputError, match=f"port {port} is in use"):
+            serve(anim, port=port)
+        assert main(["view", str(tmp_path / "a.npz"), "--port", str(port)]) == 2
+    assert capsys.readouterr().err.strip() == f"error: port {port} is in use; --port 0 picks a free one"
+
+
 def _magenta(image: np.ndarray) -> np.ndarray:
     """(H, W) bool: pixels of the object's hue, faded or not (nothing in viser's page is magenta)."""
     r, g, b = (image[..., i].astype(int) for i in range(3))

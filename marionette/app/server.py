@@ -26,6 +26,7 @@ from importlib import resources
 from pathlib import Path
 from urllib.parse import parse_qs, urlparse
 
+from ..address import check_address
 from ..errors import InputError
 from ..options import checked, parse_background, parse_focal, parse_parts
 from ..prior import MOTION_FRAMES
@@ -202,16 +203,15 @@ class AppServer:
 
 
 def serve_app(host: str = "127.0.0.1", port: int = 8765, workdir: str | Path | None = None) -> AppServer:
-    """Start the app on ``host:port`` (0: any free port) and return at once; work files under ``workdir``
-    (default: a fresh temporary folder, removed when the app stops)."""
+    """Start the app on ``host:port`` (0: any free port; one in use is an error) and return at once; work
+    files under ``workdir`` (default: a fresh temporary folder, removed when the app stops)."""
     import tempfile
 
-    from ..viewer import _check_host
-
-    _check_host(host)
+    port = int(port)
+    check_address(host, port)  # before the work folder is made
     root = Path(workdir) if workdir is not None else Path(tempfile.mkdtemp(prefix="marionette-app-"))
     try:
-        return AppServer(host, int(port), root, temporary=workdir is None)
+        return AppServer(host, port, root, temporary=workdir is None)
     except OSError as e:
         if workdir is None:
             shutil.rmtree(root, ignore_errors=True)
