@@ -3,7 +3,8 @@
 Every command prints one ``error: …`` line on stderr and exits with code 2 on
 bad input or usage, and writes its outputs as one unit: all under temporary
 names, put in place together when the command succeeds
-(:class:`~marionette.io.atomic.StagedOutputs`). A command imports the stages it
+(:class:`~marionette.io.atomic.StagedOutputs`); no output may be one of its
+inputs (:func:`_check_overwrites`). A command imports the stages it
 runs when it runs (not at start-up), so that ``--help`` and a mistyped option
 answer at once.
 """
@@ -43,18 +44,104 @@ from .options import (
     parse_size,
 )
 from .prior import CAMERA_EXTRA, MOTION_FRAMES
-from .progress import Reporter, interrupt_requested
+from .progress import Reporter, interrupt_requested, sigterm_as_interrupt
 from .transfer.controls import LOOPS, output_length, source_times
 
 if TYPE_CHECKING:
     from .segment import Prompt
 
-app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
+#: Help panels, in the order shown: a command's options grouped by what they are for.
+PANELS = SOURCE, SELECTION, MOTION, PLAYBACK, TARGET, CAMERA, OUTPUT, PERFORMANCE, SERVER, GENERAL = (
+    "Source", "Object selection", "Motion", "Playback", "Target", "Camera", "Output", "Performance", "Server",
+    "General")
+
+#: Options that name an output; every other path a command takes is one of its inputs.
+OUTPUT_OPTIONS = ("output", "plot", "save_masks", "ply_dir", "splats", "preview", "side_by_side", "report")
+
+
+def _check_overwrites(ctx: typer.Context) -> None:
+    """Refuse an output that is an input or another output, lies inside an input folder or holds one.
+
+    Paths are compared resolved (``./a/../b.mp4`` is ``b.mp4``, links followed), so that nothing a command
+    reads is lost to what it writes.
+    """
+    labels = {p.name: p.opts[0] if p.param_type_name == "option" else p.name.upper() for p in ctx.command.params}
+    given = {name: value for name, value in ctx.params.items() if isinstance(value, Path)}
+    resolved = {name: path.resolve() for name, path in given.items()}
+    for out in (name for name in given if name in OUTPUT_OPTIONS):
+        place = resolved[out]
+        for name, path in resolved.items():
+            if name == out:
+                continue
+            if path == place:
+                how = "is also"
+            elif name not in OUTPUT_OPTIONS and place.is_relative_to(path):
+                how = "is inside"
+            elif name not in OUTPUT_OPTIONS and path.is_relative_to(place) and path.is_dir():
+                how = "holds"
+            else:
+                continue
+            raise InputError(f"{labels[out]} {given[out]} {how} {labels[name]} {given[name]}; "
+                             "give it a path of its own")
+
+
+@contextlib.contextmanager
+def _output_folders(ctx: typer.Context) -> Iterator[None]:
+    """Make the missing folders the outputs go in (``-o results/out.mp4``); remove them again if the command
+    fails or is interrupted."""
+    made: list[Path] = []
+    try:
+        for name in OUTPUT_OPTIONS:
+            path = ctx.params.get(name)
+            for folder in reversed([f for f in (path.parents if path else ()) if not f.exists()]):
+                try:
+                    folder.mkdir()
+                except OSError as e:
+                    raise InputError(f"cannot make output folder {folder}: {e.strerror}") from None
+                made.append(folder)
+        yield
+    except BaseException:
+        for folder in reversed(made):
+            with contextlib.suppress(OSError):  # only if nothing is in it
+                folder.rmdir()
+        raise
+
+
+class _PlainHelp:
+    """``--help`` as a plain flag among the general options (typer's rich help lists it as ``--help <bool>``)."""
+
+    def get_help_option(self, ctx: typer.Context):
+        option = super().get_help_option(ctx)
+        if option is not None:
+            option.metavar, option.rich_help_panel = "", GENERAL
+        return option
+
+
+class _Group(_PlainHelp, typer.core.TyperGroup):
+    """The command group, with a plain ``--help``."""
+
+
+class _Command(_PlainHelp, typer.core.TyperCommand):
+    """A command with a plain ``--help``, its options in panel order; before it runs, its outputs are checked
+    against its inputs and their missing folders made."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.params.sort(key=lambda p: PANELS.index(p.rich_help_panel) if p.rich_help_panel else -1)
+
+    def invoke(self, ctx: typer.Context):
+        _check_overwrites(ctx)
+        with _output_folders(ctx):
+            return super().invoke(ctx)
+
+
+app = typer.Typer(cls=_Group, add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   help="Transfer the rigid motion of a video onto a single image, via 3D Gaussians.")
 
 VIDEO_SUFFIXES = (".mp4", ".gif", "")
 
-Output = Annotated[Path, typer.Option("--output", "-o", help="Output file.")]
+Output = Annotated[Path, typer.Option("--output", "-o", help="Output file.", rich_help_panel=OUTPUT)]
+OutputDir = Annotated[Path, typer.Option("--output", "-o", help="Output folder.", rich_help_panel=OUTPUT)]
 
 
 def _load_config(ctx: typer.Context, value: Optional[Path]) -> Optional[Path]:
@@ -102,12 +189,14 @@ def _load_config(ctx: typer.Context, value: Optional[Path]) -> Optional[Path]:
 
 
 Config = Annotated[Optional[Path], typer.Option(
-    help="TOML file of option defaults ([COMMAND] tables allowed); the command line wins.",
+    help="TOML file of option defaults ([COMMAND] tables allowed).", rich_help_panel=GENERAL,
     is_eager=True, callback=_load_config)]
-Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bars or messages.")]
-Verbose = Annotated[bool, typer.Option("--verbose", "-v", help="Also print each stage's time and the figures.")]
-Json = Annotated[bool, typer.Option(
-    "--json", help="Print a JSON summary (outputs, timings, figures, warnings) on stdout.")]
+Quiet = Annotated[bool, typer.Option("--quiet", "-q", metavar="", help="No progress bars or messages.",
+                                     rich_help_panel=GENERAL)]
+Verbose = Annotated[bool, typer.Option("--verbose", "-v", metavar="",
+                                       help="Also print each stage's time and the figures.", rich_help_panel=GENERAL)]
+Json = Annotated[bool, typer.Option("--json", metavar="", help="Print a JSON summary, or the error, on stdout.",
+                                    rich_help_panel=GENERAL)]
 
 
 @dataclass
@@ -224,8 +313,8 @@ def _transfer_checks(frames: Optional[int], speed: float, fps: Optional[float]) 
         raise InputError(f"--fps must be in (0, 240], got {fps}")
 
 
-@app.command()
-def demo(output: Annotated[Path, typer.Option("--output", "-o", help="Output folder.")] = Path("marionette-demo"),
+@app.command(cls=_Command)
+def demo(output: OutputDir = Path("marionette-demo"),
          quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False, config: Config = None) -> None:
     """Run the whole method on a synthetic source and target; writes DIR/*.mp4."""
     from .demo import run_demo
@@ -238,47 +327,42 @@ def demo(output: Annotated[Path, typer.Option("--output", "-o", help="Output fol
         session.figures["source"] = _prior_figures(read_prior(written["prior"]))
 
 
-Masks = Annotated[Optional[Path], typer.Option(help="Folder of per-frame mask images (default: found automatically).")]
-Depth = Annotated[Optional[Path], typer.Option(help="Folder of per-frame depth maps (16-bit PNG in mm, or .npy).")]
+Masks = Annotated[Optional[Path], typer.Option(
+    help="Folder of per-frame object masks (default: found automatically).", rich_help_panel=SELECTION)]
+Depth = Annotated[Optional[Path], typer.Option(
+    help="Folder of per-frame depth maps (16-bit PNG in mm, or .npy).", rich_help_panel=SOURCE)]
 Focal = Annotated[Optional[str], typer.Option(
-    help="Focal length in pixels, or 'auto' to estimate it from how the object turns (kept at the default when "
-         "its motion does not tell). Default: a 60° horizontal field of view.")]
+    help="Focal length in pixels, or 'auto' (default: a 60° wide view).", rich_help_panel=SOURCE)]
 EvalFocal = Annotated[str, typer.Option(
-    help="Focal length in pixels, or 'auto' to estimate it from how the object turns, as the paper's "
-         "reconstruction recovers its camera.")]
-Parts = Annotated[str, typer.Option(
-    help="Number of moving rigid parts, or 'auto' to choose; above 1, a static group is added when found.")]
-Start = Annotated[int, typer.Option(help="First source frame to use.")]
-End = Annotated[Optional[int], typer.Option(help="Source frame to stop before (default: the end).")]
-Stride = Annotated[int, typer.Option(help="Use every N-th source frame.")]
-MaxSide = Annotated[int, typer.Option(help="Downscale source frames to this long side (intrinsics follow).")]
-MaxPixels = Annotated[int, typer.Option(
-    help="Downscale further, with a warning, when all selected source frames together hold more pixels (bounds"
-         " memory on long videos).")]
-Smooth = Annotated[float, typer.Option(help="Temporal smoothing of the poses (0: off).")]
-Plot = Annotated[Optional[Path], typer.Option(help="Also draw each part's rotation and translation to this PNG.")]
+    help="Focal length in pixels, or 'auto' to estimate it from the motion.", rich_help_panel=SOURCE)]
+Parts = Annotated[str, typer.Option(help="Number of moving rigid parts, or 'auto' to choose.", rich_help_panel=MOTION)]
+Start = Annotated[int, typer.Option(help="First source frame to use.", rich_help_panel=SOURCE)]
+End = Annotated[Optional[int], typer.Option(help="Source frame to stop before (default: the end).",
+                                            rich_help_panel=SOURCE)]
+Stride = Annotated[int, typer.Option(help="Use every N-th source frame.", rich_help_panel=SOURCE)]
+MaxSide = Annotated[int, typer.Option(help="Downscale source frames to this long side.",
+                                      rich_help_panel=PERFORMANCE)]
+MaxPixels = Annotated[int, typer.Option(help="Downscale further when all frames hold more pixels than this.",
+                                        rich_help_panel=PERFORMANCE)]
+Smooth = Annotated[float, typer.Option(help="Temporal smoothing of the poses (0: off).", rich_help_panel=MOTION)]
+Plot = Annotated[Optional[Path], typer.Option(help="Also draw each part's rotation and translation to this PNG.",
+                                              rich_help_panel=OUTPUT)]
 RecoverFrames = Annotated[bool, typer.Option(
-    help="Find the pose of a frame the tracks lose (blur, a fast turn) by aligning a model of the object lifted "
-         "from the last well-tracked frame, instead of interpolating it (one-part extraction).")]
+    metavar="", help="Pose a frame the tracks lose by aligning the object's model.", rich_help_panel=MOTION)]
 Joints = Annotated[bool, typer.Option(
-    help="Fit a part that turns about a fixed axis of the part that turns least (a lid on a box, a door on its "
-         "frame) as a hinge on it, when that explains its tracks as well as a free motion (multi-part extraction).")]
+    metavar="", help="Fit a part turning about a fixed axis as a hinge (lid, door).", rich_help_panel=MOTION)]
 StrictTracks = Annotated[Optional[bool], typer.Option(
-    "--strict-tracks/--anchored-tracks", show_default="auto",
-    help="Strict: a track ends where its window stops matching the one it is aligned against and a fresh one "
-         "starts there (each track one surface point: poses several times closer on clean footage; compressed or "
-         "blurred clips cut them into pieces a frame or two long). Anchored: the track is aligned again from "
-         "there. By default strict while 70 % of the windows keep matching (one-part extraction), else anchored.")]
+    "--strict-tracks/--anchored-tracks", show_default="auto", metavar="",
+    help="End a track where it stops matching, or align it again.", rich_help_panel=MOTION)]
 SourcePoint = Annotated[Optional[list[str]], typer.Option(
-    help="A point X,Y on the object in the first source frame used, in its original pixels (repeatable): the "
-         "masks follow that object instead of the automatic choice.")]
+    metavar="X,Y", help="A point on the object in the first source frame (repeatable).", rich_help_panel=SELECTION)]
 SourceBox = Annotated[Optional[str], typer.Option(
-    help="A box X0,Y0,X1,Y1 around the object in the first source frame used, in its original pixels.")]
+    metavar="X0,Y0,X1,Y1", help="A box around the object in the first source frame.", rich_help_panel=SELECTION)]
 SourceExclude = Annotated[Optional[list[str]], typer.Option(
-    help="A point X,Y in the first source frame used that is not the object (repeatable).")]
+    metavar="X,Y", help="A point off the object in the first source frame (repeatable).",
+    rich_help_panel=SELECTION)]
 SaveMasks = Annotated[Optional[Path], typer.Option(
-    help="Also write the source masks used to this folder (00000.png …, one per frame used, the layout --masks "
-         "reads).")]
+    help="Also write the source masks used to this folder (as --masks reads).", rich_help_panel=OUTPUT)]
 
 
 def _prompt(prefix: str, points: Optional[list[str]], box: Optional[str],
@@ -361,7 +445,7 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
     return prior
 
 
-@app.command()
+@app.command(cls=_Command)
 def extract(source: Annotated[Path, typer.Argument(help="Video file or folder of frames.")],
             output: Output, masks: Masks = None, depth: Depth = None, focal: Focal = None, parts: Parts = "1",
             start: Start = 0, end: End = None, stride: Stride = 1, max_side: MaxSide = DEFAULT_MAX_SIDE,
@@ -380,57 +464,62 @@ def extract(source: Annotated[Path, typer.Argument(help="Video file or folder of
         session.output("prior", output)
 
 
-Frames = Annotated[Optional[int], typer.Option(help="Number of output frames (default: the source's length).")]
-Speed = Annotated[float, typer.Option(help="Playback speed relative to the source.")]
-Loop = Annotated[str, typer.Option(help="Past the source's end: hold, repeat or pingpong.")]
-Reverse = Annotated[bool, typer.Option("--reverse", help="Play the source's motion backwards.")]
-RotationScale = Annotated[float, typer.Option(help="Multiply every rotation angle.")]
-TranslationScale = Annotated[float, typer.Option(help="Multiply every displacement of the parts' centres.")]
-Fps = Annotated[Optional[float], typer.Option(help="Output frame rate (default: the source's).")]
-Background = Annotated[str, typer.Option(help="Background colour R,G,B (0-1 or 0-255).")]
+Frames = Annotated[Optional[int], typer.Option(help="Number of output frames (default: the source's length).",
+                                               rich_help_panel=PLAYBACK)]
+Speed = Annotated[float, typer.Option(help="Playback speed relative to the source.", rich_help_panel=PLAYBACK)]
+Loop = Annotated[str, typer.Option(help="Past the source's end: hold, repeat or pingpong.", rich_help_panel=PLAYBACK)]
+Reverse = Annotated[bool, typer.Option("--reverse", metavar="", help="Play the source's motion backwards.",
+                                       rich_help_panel=PLAYBACK)]
+RotationScale = Annotated[float, typer.Option(help="Multiply every rotation angle.", rich_help_panel=PLAYBACK)]
+TranslationScale = Annotated[float, typer.Option(help="Multiply every displacement of the parts' centres.",
+                                                 rich_help_panel=PLAYBACK)]
+Fps = Annotated[Optional[float], typer.Option(help="Output frame rate (default: the source's).",
+                                              rich_help_panel=OUTPUT)]
+Background = Annotated[str, typer.Option(help="Background colour R,G,B (0-1 or 0-255).", rich_help_panel=OUTPUT)]
 SceneBackground = Annotated[str, typer.Option(
-    "--background", help="Background colour R,G,B (0-1 or 0-255), or 'scene': the object moves inside its photo "
-                         "(the output keeps the photo's framing and size, the spot it leaves is inpainted).")]
+    "--background", help="Background R,G,B (0-1 or 0-255), or 'scene': the photo's own.", rich_help_panel=OUTPUT)]
 Size = Annotated[Optional[str], typer.Option(
-    help="Output size WIDTHxHEIGHT for a .ply target (default 512x512); an image target is resized to it.")]
-CameraMove = Annotated[str, typer.Option("--camera", help="Camera move: static, orbit or dolly.")]
+    metavar="WxH", help="Output size (default: the photo's; 512x512 for a .ply).", rich_help_panel=OUTPUT)]
+CameraMove = Annotated[str, typer.Option("--camera", help="Camera move: static, orbit or dolly.",
+                                         rich_help_panel=CAMERA)]
 CameraAmount = Annotated[Optional[float], typer.Option(
-    help="Orbit degrees (default 30) or dolly share of the distance (default 0.3).")]
-CameraPath = Annotated[Optional[Path], typer.Option(help="JSON list of CAMERA.json objects, one per frame (or one).")]
+    help="Orbit degrees (30; within ±360) or dolly share (0.3; 0 to 0.9).", rich_help_panel=CAMERA)]
+CameraPath = Annotated[Optional[Path], typer.Option(help="JSON list of CAMERA.json objects, one per frame (or one).",
+                                                    rich_help_panel=CAMERA)]
 PartSeed = Annotated[Optional[list[str]], typer.Option(
-    help="Seed of a part on the target, K:X,Y in target pixels (repeatable; default: matched from the source's"
-         " part layout).")]
+    metavar="K:X,Y", help="Seed part K at target pixel X,Y (repeatable; default: matched).",
+    rich_help_panel=SELECTION)]
 Refine = Annotated[bool, typer.Option(
-    "--refine/--no-refine", help="Refine a multi-part motion: parts turn about their joints, seams stay closed.")]
+    "--refine/--no-refine", metavar="", help="Refine a multi-part motion: parts turn about their joints.",
+    rich_help_panel=MOTION)]
 Anchor = Annotated[str, typer.Option(
-    help="Turn each part about its own centre ('centroid') or about the source's world origin as the paper "
-         "does ('world').")]
+    help="Turn parts about their own centre ('centroid') or the 'world' origin.", rich_help_panel=PLAYBACK)]
 Motion = Annotated[str, typer.Option(
-    help="Move the target as the source camera filmed the object ('filmed': a car a panning camera follows "
-         "turns in view) or as it moved in the world, the camera's own motion removed ('world').")]
+    help="Move as the source camera saw it ('filmed') or as in the 'world'.", rich_help_panel=PLAYBACK)]
 TargetDepth = Annotated[Optional[Path], typer.Option(
-    help="Depth map of the target image (16-bit PNG in mm, or .npy) to shape it instead of inflating its silhouette.")]
+    help="Depth map of the photo (16-bit PNG in mm, or .npy) to shape it.", rich_help_panel=TARGET)]
 TargetShape = Annotated[str, typer.Option(
-    "--shape", help="Shape prior of an image target: auto (chosen from its outline), inflate, revolve (pots, "
-                    "bottles) or extrude (boxes, appliances).")]
+    "--shape", help="Shape prior: auto, inflate, revolve (pots) or extrude (boxes).", rich_help_panel=TARGET)]
 Polish = Annotated[int, typer.Option(
-    help="Adam steps fitting the lifted target's colours and opacities to the photo (sharper edges; about a "
-         "second per step at 512x512; 0: off).")]
+    help="Steps fitting the lifted photo's colours to it (sharper; 0: off).", rich_help_panel=TARGET)]
 TargetMask = Annotated[Optional[Path], typer.Option(
-    help="Image marking the target object (default: alpha, else found automatically).")]
+    help="Image marking the target object (default: alpha, else found).", rich_help_panel=SELECTION)]
 TargetPoint = Annotated[Optional[list[str]], typer.Option(
-    help="A point X,Y on the object in the target image, in its own pixels (repeatable): picks the object instead "
-         "of the automatic mask.")]
-TargetBox = Annotated[Optional[str], typer.Option(help="A box X0,Y0,X1,Y1 around the object in the target image.")]
+    metavar="X,Y", help="A point on the object in the target image (repeatable).", rich_help_panel=SELECTION)]
+TargetBox = Annotated[Optional[str], typer.Option(
+    metavar="X0,Y0,X1,Y1", help="A box around the object in the target image.", rich_help_panel=SELECTION)]
 TargetExclude = Annotated[Optional[list[str]], typer.Option(
-    help="A point X,Y in the target image that is not the object (repeatable).")]
-PlyDir = Annotated[Optional[Path], typer.Option(help="Also write each frame's Gaussians as DIR/00000.ply ….")]
+    metavar="X,Y", help="A point off the object in the target image (repeatable).", rich_help_panel=SELECTION)]
+PlyDir = Annotated[Optional[Path], typer.Option(help="Also write each frame's Gaussians to this folder, a .ply each.",
+                                                rich_help_panel=OUTPUT)]
 Splats = Annotated[Optional[Path], typer.Option(
-    help="Also write the animated Gaussians as one .npz for `marionette view`.")]
-Preview = Annotated[Optional[Path], typer.Option(help="Also write a small looping GIF preview of the result.")]
+    help="Also write the animated Gaussians (.npz) for `marionette view`.", rich_help_panel=OUTPUT)]
+Preview = Annotated[Optional[Path], typer.Option(help="Also write a small looping GIF preview.",
+                                                 rich_help_panel=OUTPUT)]
 Report = Annotated[Optional[Path], typer.Option(
-    help="Also write a JSON report: motion fidelity to the source, rigidity, jerk.")]
-SideBySide = Annotated[Optional[Path], typer.Option(help="Also write the source beside the result (.mp4 or .gif).")]
+    help="Also write a JSON report: motion fidelity, rigidity, jerk.", rich_help_panel=OUTPUT)]
+SideBySide = Annotated[Optional[Path], typer.Option(help="Also write the source beside the result (.mp4 or .gif).",
+                                                    rich_help_panel=OUTPUT)]
 
 
 @dataclass(frozen=True)
@@ -577,7 +666,7 @@ def _transfer_and_render(prior, target: Path, output: Path, play: _Playback, ses
     return trajectory, video
 
 
-@app.command()
+@app.command(cls=_Command)
 def transfer(prior: Annotated[Path, typer.Argument(help="SpaT prior .npz.")],
              target: Annotated[Path, typer.Argument(help="Target image (RGB/RGBA) or 3DGS .ply.")],
              output: Output, frames: Frames = None, speed: Speed = 1.0, loop: Loop = "hold", reverse: Reverse = False,
@@ -599,7 +688,7 @@ def transfer(prior: Annotated[Path, typer.Argument(help="SpaT prior .npz.")],
         _transfer_and_render(read_prior(prior), target, output, play, session)
 
 
-@app.command()
+@app.command(cls=_Command)
 def run(source: Annotated[Path, typer.Argument(help="Video file or folder of frames.")],
         target: Annotated[Path, typer.Argument(help="Target image (RGB/RGBA) or 3DGS .ply.")],
         output: Output, masks: Masks = None, depth: Depth = None, focal: Focal = None, parts: Parts = "1",
@@ -651,19 +740,21 @@ def run(source: Annotated[Path, typer.Argument(help="Video file or folder of fra
             session.output("report", report)
 
 
-@app.command()
+@app.command(cls=_Command)
 def reconstruct(source: Annotated[Path, typer.Argument(help="Video file or folder of frames.")],
-                output: Annotated[Path, typer.Option("--output", "-o", help="Output 3DGS .ply file.")],
+                output: Annotated[Path, typer.Option("--output", "-o", help="Output 3DGS .ply file.",
+                                                     rich_help_panel=OUTPUT)],
                 masks: Masks = None,
                 prior: Annotated[Optional[Path], typer.Option(
-                    help="SpaT prior .npz of the same frames (default: extracted first, as `extract` does).")] = None,
+                    help="SpaT prior .npz of the same frames (default: extracted first).",
+                    rich_help_panel=SOURCE)] = None,
                 focal: Focal = None, parts: Parts = "1", start: Start = 0, end: End = None,
                 stride: Annotated[int, typer.Option(
-                    help="Fit every N-th frame (the others are left out, e.g. to test the result).")] = 1,
+                    help="Fit every N-th frame (the others can test the result).", rich_help_panel=SOURCE)] = 1,
                 iterations: Annotated[int, typer.Option(
-                    help="Optimisation steps (one frame each; the first two thirds at half resolution).")] = 900,
+                    help="Optimisation steps, one frame each.", rich_help_panel=PERFORMANCE)] = 900,
                 max_side: Annotated[int, typer.Option(
-                    help="Long side of the frames the fit works on (before cropping to the object).")] = 960,
+                    help="Long side of the frames the fit works on.", rich_help_panel=PERFORMANCE)] = 960,
                 source_point: SourcePoint = None, source_box: SourceBox = None,
                 source_exclude: SourceExclude = None,
                 quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False,
@@ -716,17 +807,16 @@ def reconstruct(source: Annotated[Path, typer.Argument(help="Video file or folde
                                     f"frame-0 camera's axes, diffuse share {light.diffuse:.2f}")
 
 
-@app.command("eval-self")
+@app.command("eval-self", cls=_Command)
 def eval_self_cmd(source: Annotated[Path, typer.Argument(help="Video file or folder of frames.")],
-                  output: Annotated[Path, typer.Option("--output", "-o", help="Output folder.")],
-                  masks: Masks = None, parts: Parts = "1", max_side: MaxSide = DEFAULT_MAX_SIDE,
+                  output: OutputDir, masks: Masks = None, parts: Parts = "1", max_side: MaxSide = DEFAULT_MAX_SIDE,
                   focal: EvalFocal = "auto",
                   target: Annotated[str, typer.Option(
-                      help="What is moved: 'reconstruction' (the object fitted to the whole video) or 'frame0' "
-                           "(source frame 0 lifted alone, the paper's protocol).")] = "reconstruction",
+                      help="What moves: 'reconstruction' (fitted to the video) or 'frame0'.",
+                      rich_help_panel=TARGET)] = "reconstruction",
                   iterations: Annotated[Optional[int], typer.Option(
-                      help="Optimisation steps of the reconstruction (one frame each, the first two thirds at "
-                           "half resolution; default 900).")] = None,
+                      help="Optimisation steps of the reconstruction (default 900).",
+                      rich_help_panel=PERFORMANCE)] = None,
                   source_point: SourcePoint = None, source_box: SourceBox = None,
                   source_exclude: SourceExclude = None, save_masks: SaveMasks = None,
                   quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False,
@@ -768,15 +858,16 @@ def eval_self_cmd(source: Annotated[Path, typer.Argument(help="Video file or fol
                                      f"LPIPS {lpips}, motion fidelity {fidelity}")
 
 
-@app.command("eval")
+@app.command("eval", cls=_Command)
 def eval_cmd(source: Annotated[Path, typer.Argument(help="Source video file or folder of frames.")],
              result: Annotated[Path, typer.Argument(help="Transferred video, e.g. from `marionette run`.")],
              masks: Masks = None, max_side: MaxSide = DEFAULT_MAX_SIDE,
              speed: Annotated[Optional[float], typer.Option(
-                 help="The --speed the result was made with (default 1).")] = None,
+                 help="The --speed the result was made with (default 1).", rich_help_panel=PLAYBACK)] = None,
              loop: Annotated[Optional[str], typer.Option(
-                 help="The --loop the result was made with: hold (default), repeat or pingpong.")] = None,
-             reverse: Annotated[bool, typer.Option("--reverse", help="The result was made with --reverse.")] = False,
+                 help="The --loop the result was made with (default hold).", rich_help_panel=PLAYBACK)] = None,
+             reverse: Annotated[bool, typer.Option("--reverse", metavar="", help="The result was made with --reverse.",
+                                                   rich_help_panel=PLAYBACK)] = False,
              quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False,
              config: Config = None) -> None:
     """Motion fidelity of RESULT to SOURCE: 1 the same motion, 0 unrelated, -1 opposite (at the times it shows)."""
@@ -796,15 +887,20 @@ def eval_cmd(source: Annotated[Path, typer.Argument(help="Source video file or f
             print(f"motion fidelity {fidelity:.4f}")
 
 
-@app.command()
+@app.command(cls=_Command)
 def batch(jobs: Annotated[Path, typer.Argument(help="Job file (TOML; the format is in marionette.batch's docstring).")],
           scheduler: Annotated[Optional[str], typer.Option(
-              help="Address of a running Dask scheduler, e.g. tcp://10.0.0.5:8786 (default: a local cluster).")] = None,
-          workers: Annotated[int, typer.Option(help="Worker processes of the local cluster.")] = 2,
+              help="Address of a Dask scheduler (default: a local cluster).", rich_help_panel=PERFORMANCE)] = None,
+          workers: Annotated[int, typer.Option(help="Worker processes of the local cluster.",
+                                               rich_help_panel=PERFORMANCE)] = 2,
           output: Annotated[Optional[Path], typer.Option(
-              "--output", "-o", help="Output folder (default: the job file's 'output').")] = None,
+              "--output", "-o", help="Output folder (default: the job file's 'output').",
+              rich_help_panel=OUTPUT)] = None,
           quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False, config: Config = None) -> None:
-    """Run many source × target jobs on Dask: one prior per source, finished jobs skipped, a results table."""
+    """Run many source × target jobs on Dask: one prior per source, finished jobs skipped, a results table.
+
+    Exit code 1 if some job failed (its error is in the table; the other jobs still run).
+    """
     from .batch import run_batch
 
     with _session("batch", quiet, verbose, json_summary) as session:
@@ -815,13 +911,15 @@ def batch(jobs: Annotated[Path, typer.Argument(help="Job file (TOML; the format 
         raise typer.Exit(1)
 
 
-@app.command()
+@app.command(cls=_Command)
 def view(result: Annotated[Path, typer.Argument(
              help="Animated splats (.npz from --splats), a --ply-dir folder, or one .ply.")],
          host: Annotated[str, typer.Option(
-             help="Address to listen on; 0.0.0.0 lets other machines connect.")] = "127.0.0.1",
-         port: Annotated[int, typer.Option(help="Port (the next free one if taken; 0: any free port).")] = 8080,
-         fps: Annotated[Optional[float], typer.Option(help="Playback rate (default: the result's own).")] = None,
+             help="Address to listen on; 0.0.0.0 lets other machines connect.", rich_help_panel=SERVER)] = "127.0.0.1",
+         port: Annotated[int, typer.Option(help="Port (0: any free port).",
+                                           rich_help_panel=SERVER)] = 8080,
+         fps: Annotated[Optional[float], typer.Option(help="Playback rate (default: the result's own).",
+                                                      rich_help_panel=OUTPUT)] = None,
          quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False, config: Config = None) -> None:
     """Play animated Gaussians in the browser: time slider, play/pause, free camera (until Ctrl-C)."""
     from .viewer import run as run_viewer  # viser loads only for this command
@@ -839,13 +937,14 @@ def view(result: Annotated[Path, typer.Argument(
         run_viewer(result, host, port, fps=fps, announce=announce, verbose=verbose)
 
 
-@app.command("app")
+@app.command("app", cls=_Command)
 def app_cmd(host: Annotated[str, typer.Option(
-                help="Address to listen on; 0.0.0.0 lets other machines connect.")] = "127.0.0.1",
-            port: Annotated[int, typer.Option(help="Port (0: any free port).")] = 8765,
+                help="Address to listen on; 0.0.0.0 lets other machines connect.",
+                rich_help_panel=SERVER)] = "127.0.0.1",
+            port: Annotated[int, typer.Option(help="Port (0: any free port).", rich_help_panel=SERVER)] = 8765,
             workdir: Annotated[Optional[Path], typer.Option(
-                help="Folder for uploads and results, one subfolder per browser session (default: a new "
-                     "temporary folder, removed when the app stops).")] = None,
+                help="Folder for uploads and results (default: a temporary one).",
+                rich_help_panel=SERVER)] = None,
             quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False, config: Config = None) -> None:
     """A local web page: upload a clip and a photo, click the objects, get the video (until Ctrl-C)."""
     from .app import run_app
@@ -863,9 +962,10 @@ def app_cmd(host: Annotated[str, typer.Option(
         run_app(host, port, workdir, announce=announce)
 
 
-@app.command("render")
+@app.command("render", cls=_Command)
 def render_cmd(scene: Annotated[Path, typer.Argument(help="3DGS .ply file.")],
-               camera: Annotated[Path, typer.Option(help="CAMERA.json (docs/DESIGN.md contract).")],
+               camera: Annotated[Path, typer.Option(help="CAMERA.json (docs/DESIGN.md contract).",
+                                                    rich_help_panel=CAMERA)],
                output: Output, background: Background = "1,1,1", quiet: Quiet = False, verbose: Verbose = False,
                json_summary: Json = False, config: Config = None) -> None:
     """Render a 3DGS .ply from a camera to a PNG (a warning when nothing of it is in view)."""
@@ -906,23 +1006,38 @@ def _interrupted(error: BaseException) -> bool:
     return False
 
 
+def _failed(argv: list[str] | None, message: str, code: int) -> int:
+    """Say why a command failed: one ``error: …`` line on stderr and, with ``--json``, a JSON object
+    ``{"command", "error", "exit_code"}`` on stdout; ``code`` back."""
+    print(f"error: {message}", file=sys.stderr)
+    args = sys.argv[1:] if argv is None else list(argv)
+    args = args[:args.index("--")] if "--" in args else args
+    if "--json" in args:
+        commands = typer.main.get_command(app).commands
+        command = next((arg for arg in args if arg in commands), None)
+        print(json.dumps({"command": command, "error": message, "exit_code": code}), flush=True)
+    return code
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Entry point: run the CLI, turning bad input into ``error: …`` and exit code 2."""
+    """Entry point: run the CLI, turning bad input into ``error: …`` and exit code 2.
+
+    Ctrl-C and SIGTERM alike stop a command with nothing partial left, ``error: interrupted`` and exit code 130.
+    """
     warnings.showwarning = _show_warning
     try:
-        code = app(args=argv, standalone_mode=False, prog_name="marionette")
+        with sigterm_as_interrupt():
+            code = app(args=argv, standalone_mode=False, prog_name="marionette")
     except typer.Exit as e:
         code = e.exit_code
     except typer.Abort:
         code = 130
     except typer.TyperException as e:  # typer >= 0.29 vendors click; usage errors land here
         message = e.format_message().splitlines()
-        if message:  # none for a bare `marionette`: the help is printed instead, and click's exit code 2 kept
-            print(f"error: {message[0]}", file=sys.stderr)
-        return 2
+        # none for a bare `marionette`: the help is printed instead, and click's exit code 2 kept
+        return _failed(argv, message[0], 2) if message else 2
     except InputError as e:
-        print(f"error: {str(e).splitlines()[0]}", file=sys.stderr)
-        return 2
+        return _failed(argv, str(e).splitlines()[0], 2)
     except KeyboardInterrupt:
         code = 130
     except Exception as e:
@@ -932,7 +1047,7 @@ def main(argv: list[str] | None = None) -> int:
             raise
         code = 130
     if code == 130:  # typer turns Ctrl-C into exit code 130
-        print("error: interrupted", file=sys.stderr)
+        return _failed(argv, "interrupted", 130)
     return code if isinstance(code, int) else 0
 
 

@@ -16,7 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .camera import Camera, focal_from_fov
+from .camera import MAX_IMAGE_SIDE, Camera, focal_from_fov
 from .errors import InputError
 from .gaussians import Gaussians
 from .io import (
@@ -266,14 +266,18 @@ def _read_target_image(path: Path, mask: str | Path | None, depth: str | Path | 
 
 def check_target(target: str | Path, mask: str | Path | None = None, depth: str | Path | None = None,
                  prompt: Prompt | None = None) -> None:
-    """Reject a target (and its mask and depth files, its prompt) that cannot be lifted, before any long work."""
+    """Reject a target (and its mask and depth files, its prompt) that cannot be lifted, before any long work:
+    unreadable, or an image with a side outside 16..MAX_IMAGE_SIDE pixels."""
     path = Path(target)
     if path.suffix.lower() == ".ply":
         if mask is not None or depth is not None or prompt is not None:
             raise InputError("a target mask, prompt or depth map applies to an image target, not to a .ply")
         read_ply(path)
-    else:
-        _read_target_image(path, mask, depth, prompt)
+        return
+    image = _read_target_image(path, mask, depth, prompt)[0]
+    if not 16 <= min(image.shape[:2]) <= max(image.shape[:2]) <= MAX_IMAGE_SIDE:
+        raise InputError(f"target image {path.name} is {image.shape[1]}x{image.shape[0]} pixels: its sides must be "
+                         f"within 16..{MAX_IMAGE_SIDE}")
 
 
 def check_part_seeds(prior: SpatPrior, part_seeds: dict[int, tuple[float, float]]) -> None:

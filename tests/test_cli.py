@@ -80,7 +80,7 @@ def test_render_command(tmp_path):
     (["transfer", "{prior}", "{target}", "-o", "{out}", "--speed", "0"], "--speed"),
     (["transfer", "{prior}", "{target}", "-o", "{out}", "--frames", "-3"], "--frames"),
     (["transfer", "{prior}", "{target}", "-o", "{tmp}/x.avi"], "unsupported video output"),
-    (["transfer", "{prior}", "{target}", "-o", "{tmp}/missing/out.mp4"], "does not exist"),
+    (["transfer", "{prior}", "{target}", "-o", "{frames}/0.png/out.mp4"], "does not exist"),
     (["transfer", "{tmp}/nope.npz", "{target}", "-o", "{out}"], "does not exist"),
     (["transfer", "{target}", "{target}", "-o", "{out}"], "not a readable .npz"),
     (["transfer", "{prior}", "{tmp}/nope.png", "-o", "{out}"], "nope.png"),
@@ -110,6 +110,7 @@ def test_render_command(tmp_path):
     (["transfer", "{prior}", "{target}", "-o", "{out}", "--camera-path", "{tmp}/none.json"], "none.json"),
     (["transfer", "{prior}", "{target}", "-o", "{out}", "--rotation-scale", "nan"], "--rotation-scale"),
     (["transfer", "{prior}", "{target}", "-o", "{out}", "--camera", "dolly", "--camera-amount", "2"], "dolly"),
+    (["transfer", "{prior}", "{target}", "-o", "{out}", "--camera", "orbit", "--camera-amount", "1e9"], "orbit"),
     (["transfer", "{prior}"], "Missing"),
     (["frobnicate"], "No such command"),
 ])
@@ -266,3 +267,160 @@ def test_the_extracted_motion_is_summed_up_in_one_line():
                                  intrinsics=np.eye(3))
     line = _prior_line(prior)
     assert line == "motion: 2 parts over 5 frames; part 0 static; part 1 turns up to 90.0° and travels 1.00 radii"
+
+
+@pytest.fixture
+def user_files(tmp_path, prior_file, target_png):
+    """The inputs of every kind one folder might hold: a video, a frame and a mask folder, a prior, a photo, a
+    camera path, a config and a job file."""
+    from marionette.io import write_video
+
+    frames, masks = tmp_path / "frames", tmp_path / "masks"
+    for folder in (frames, masks):
+        folder.mkdir()
+        for i in range(3):
+            cv2.imwrite(str(folder / f"{i:05d}.png"), np.full((24, 32, 3), 40 * i, np.uint8))
+    write_video(tmp_path / "src.mp4", np.zeros((3, 24, 32, 3), np.uint8), 10.0)
+    (tmp_path / "cams.json").write_text("[]")
+    (tmp_path / "look.toml").write_text("")
+    (tmp_path / "jobs.toml").write_text("")
+    return {"tmp": tmp_path, "prior": prior_file, "target": target_png, "frames": frames, "masks": masks}
+
+
+def _tree(folder: Path) -> dict[str, bytes | None]:
+    return {str(p.relative_to(folder)): p.read_bytes() if p.is_file() else None for p in sorted(folder.rglob("*"))}
+
+
+@pytest.mark.parametrize("args, words", [
+    (["run", "{tmp}/src.mp4", "{target}", "-o", "{tmp}/src.mp4"], "--output {tmp}/src.mp4 is also SOURCE"),
+    (["run", "{tmp}/src.mp4", "{target}", "-o", "{tmp}/./frames/../src.mp4"], "is also SOURCE {tmp}/src.mp4"),
+    (["run", "{frames}", "{target}", "-o", "{frames}/out.mp4"], "--output {frames}/out.mp4 is inside SOURCE"),
+    (["run", "{frames}", "{target}", "-o", "{tmp}/o.mp4", "--ply-dir", "{tmp}"], "--ply-dir {tmp} holds SOURCE"),
+    (["run", "{frames}", "{target}", "-o", "{tmp}/o.mp4", "--report", "{tmp}/look.toml", "--config",
+      "{tmp}/look.toml"], "--report {tmp}/look.toml is also --config"),
+    (["run", "{frames}", "{target}", "-o", "{tmp}/o.mp4", "--side-by-side", "{target}"], "is also TARGET"),
+    (["run", "{frames}", "{target}", "-o", "{tmp}/o.mp4", "--target-depth", "{tmp}/d.npy", "--plot",
+      "{tmp}/d.npy"], "--plot {tmp}/d.npy is also --target-depth"),
+    (["transfer", "{prior}", "{target}", "-o", "{tmp}/o.mp4", "--preview", "{target}"], "--preview"),
+    (["transfer", "{prior}", "{target}", "-o", "{tmp}/o.mp4", "--splats", "{prior}"], "is also PRIOR"),
+    (["transfer", "{prior}", "{target}", "-o", "{tmp}/cams.json", "--camera-path", "{tmp}/cams.json"],
+     "is also --camera-path"),
+    (["transfer", "{prior}", "{target}", "-o", "{tmp}/o.gif", "--preview", "{tmp}/o.gif"], "is also --preview"),
+    (["transfer", "{prior}", "{target}", "-o", "{tmp}/o.mp4", "--target-mask", "{masks}/00000.png", "--ply-dir",
+      "{masks}/00000.png"], "--ply-dir {masks}/00000.png is also --target-mask"),
+    (["extract", "{frames}", "-o", "{tmp}/p.npz", "--save-masks", "{frames}"], "--save-masks {frames} is also SOURCE"),
+    (["extract", "{frames}", "--masks", "{masks}", "-o", "{tmp}/p.npz", "--save-masks", "{masks}"], "--masks"),
+    (["extract", "{frames}", "--depth", "{masks}", "-o", "{masks}/p.npz"], "is inside --depth"),
+    (["reconstruct", "{frames}", "--prior", "{prior}", "-o", "{prior}"], "is also --prior"),
+    (["eval-self", "{frames}", "-o", "{tmp}"], "--output {tmp} holds SOURCE {frames}"),
+    (["render", "{tmp}/s.ply", "--camera", "{tmp}/cams.json", "-o", "{tmp}/s.ply"], "is also SCENE"),
+    (["batch", "{tmp}/jobs.toml", "-o", "{tmp}/jobs.toml"], "is also JOBS"),
+])
+def test_an_output_that_is_an_input_is_refused_and_nothing_is_touched(user_files, capsys, args, words):
+    tmp = user_files["tmp"]
+    before = _tree(tmp)
+    assert main([a.format(**user_files) for a in args]) == 2
+    line = one_error_line(capsys)
+    assert words.format(**user_files) in line and "give it a path of its own" in line
+    assert _tree(tmp) == before
+
+
+def test_missing_output_folders_are_made_and_removed_again_if_the_command_fails(tmp_path, prior_file, target_png,
+                                                                                capsys):
+    out = tmp_path / "new" / "deeper" / "out.mp4"
+    assert main(["transfer", str(prior_file), str(target_png), "-o", str(out), "--preview",
+                 str(tmp_path / "previews" / "o.gif"), "-q"]) == 0
+    assert out.is_file() and (tmp_path / "previews" / "o.gif").is_file()
+    clear = tmp_path / "clear.png"
+    cv2.imwrite(str(clear), np.zeros((32, 32, 4), np.uint8))
+    before = _tree(tmp_path)
+    assert main(["transfer", str(prior_file), str(clear), "-o", str(tmp_path / "a" / "b" / "out.mp4"), "--ply-dir",
+                 str(tmp_path / "new" / "plys" / "frames")]) == 2
+    assert "transparent" in one_error_line(capsys)
+    assert _tree(tmp_path) == before  # the folders made for the outputs are gone again, the others stay
+    assert main(["transfer", str(prior_file), str(target_png), "-o", str(clear / "x" / "out.mp4")]) == 2
+    assert one_error_line(capsys) == f"error: cannot make output folder {clear / 'x'}: Not a directory"
+
+
+@pytest.mark.parametrize("name, image", [("tiny", np.full((6, 40, 3), 200, np.uint8)), ("corrupt", None)])
+def test_run_checks_the_target_before_it_reads_the_source(tmp_path, capsys, monkeypatch, name, image):
+    from marionette import pipeline
+
+    def never(*args, **kwargs):
+        raise AssertionError("the source was read before the target was checked")
+
+    monkeypatch.setattr(pipeline, "open_video", never)
+    monkeypatch.setattr(pipeline, "read_video", never)
+    target = tmp_path / f"{name}.png"
+    if image is None:
+        target.write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(100))
+    else:
+        cv2.imwrite(str(target), image)
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i in range(3):
+        cv2.imwrite(str(frames / f"{i}.png"), np.full((24, 32, 3), 40 * i, np.uint8))
+    assert main(["run", str(frames), str(target), "-o", str(tmp_path / "o.mp4")]) == 2
+    assert f"{name}.png" in one_error_line(capsys)
+
+
+def test_with_json_an_error_is_also_a_json_object_on_stdout(tmp_path, prior_file, target_png, capsys, monkeypatch):
+    import marionette.cli
+
+    assert main(["transfer", str(tmp_path / "none.npz"), str(target_png), "-o", str(tmp_path / "o.mp4"),
+                 "--json"]) == 2
+    captured = capsys.readouterr()
+    (line,) = captured.err.splitlines()
+    assert json.loads(captured.out) == {"command": "transfer", "error": line.removeprefix("error: "), "exit_code": 2}
+    assert main(["extract", "--json", "--frobnicate"]) == 2  # a usage error
+    assert json.loads(capsys.readouterr().out)["error"].startswith("No such option: --frobnicate")
+    assert main(["transfer", str(prior_file), str(target_png), "-o", str(tmp_path / "o.mp4")]) == 0
+    assert capsys.readouterr().out == ""  # without --json, nothing on stdout
+
+    def interrupted(path):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(marionette.cli, "read_prior", interrupted)
+    assert main(["transfer", str(prior_file), str(target_png), "-o", str(tmp_path / "o.mp4"), "--json", "-q"]) == 130
+    captured = capsys.readouterr()
+    assert json.loads(captured.out) == {"command": "transfer", "error": "interrupted", "exit_code": 130}
+    assert captured.err == "error: interrupted\n"
+
+
+def _commands():
+    from typer.main import get_command
+
+    from marionette.cli import app
+
+    group = get_command(app)
+    return [(None, group)] + list(group.commands.items())
+
+
+def test_the_help_groups_every_option_in_a_panel_and_shows_whole_names_at_80_columns(capsys, monkeypatch):
+    from marionette.cli import PANELS
+
+    monkeypatch.setenv("COLUMNS", "80")
+    for name, command in _commands():
+        assert main(([name] if name else []) + ["--help"]) == 0
+        shown = capsys.readouterr().out
+        lines = shown.splitlines()
+        assert max(len(line) for line in lines) <= 80 and "…" not in shown and "<bool>" not in shown, name
+        assert any(line.split()[:3] == ["│", "--help", "Show"] for line in lines)  # no value after --help
+        for param in command.params:
+            if param.param_type_name == "option":
+                assert param.rich_help_panel in PANELS, (name, param.name)
+                assert len(param.help) <= 72, (name, param.name)
+                for option in param.opts + param.secondary_opts:  # whole, as a word of the help
+                    assert f" {option} " in shown, (name, option)
+        if name == "run":
+            assert len(lines) < 349 // 2  # 349 lines before the options were grouped and shortened
+
+
+def test_the_command_reference_pages_are_current():
+    from marionette.cli_docs import FOLDER, pages
+
+    expected = pages()
+    assert {p.name for p in FOLDER.glob("*.md")} == set(expected), "run `python -m marionette.cli_docs`"
+    for name, text in expected.items():
+        assert (FOLDER / name).read_text(encoding="utf-8") == text, \
+            f"docs/commands/{name} is out of date: run `python -m marionette.cli_docs`"

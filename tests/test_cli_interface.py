@@ -1,6 +1,7 @@
 """Command-line conveniences: --json summaries, --verbose, --config TOML files, preview and side-by-side outputs."""
 
 import json
+import re
 from pathlib import Path
 
 import cv2
@@ -306,3 +307,45 @@ def test_reconstruct_command_defaults_are_the_library_defaults():
     assert params["max_side"].default == ReconstructOptions().max_side
     eval_help = {p.name: p for p in get_command(app).commands["eval-self"].params}["iterations"].help
     assert f"default {ReconstructOptions().iterations}" in eval_help
+
+
+#: The README's --config example as it stood when issue 54 found it failing ("output folder …/previews does not
+#: exist"); the documents' own examples are run too.
+CONFIG_EXAMPLE = '''# marionette run car.mp4 teapot.png -o out.mp4 --config look.toml
+speed = 0.5
+loop = "pingpong"
+[run]
+max-side = 640
+preview = "previews/car.gif"   # relative paths are taken from the TOML file's folder
+'''
+
+
+def _config_examples() -> list[str]:
+    """TOML examples in the README and docs/ whose first line shows the command that uses them."""
+    root = Path(__file__).resolve().parents[1]
+    found = [CONFIG_EXAMPLE]
+    for doc in [root / "README.md", *sorted((root / "docs").glob("*.md"))]:
+        found += [block for block in re.findall(r"```toml\n(.*?)```", doc.read_text(encoding="utf-8"), flags=re.S)
+                  if re.search(r"marionette .*--config", block.splitlines()[0])]
+    return found
+
+
+@pytest.mark.parametrize("example", _config_examples())
+def test_config_example_runs_as_written(tmp_path, target_png, monkeypatch, example):
+    from marionette.io import write_video
+
+    command = example.splitlines()[0].split("marionette ", 1)[1].split()
+    assert command[0] == "run", command
+    work = tmp_path / "work"
+    for name, data in [(command[1], None), (command[2], target_png.read_bytes()),
+                       (command[command.index("--config") + 1], example.encode())]:
+        (work / name).parent.mkdir(parents=True, exist_ok=True)
+        if data is None:
+            write_video(work / name, make_scene("inplane", num_frames=8, size=(96, 72), seed=1).frames, 12.0)
+        else:
+            (work / name).write_bytes(data)
+    monkeypatch.chdir(work)
+    assert main(command + ["-q"]) == 0
+    preview = re.search(r'^preview = "([^"]+)"', example, flags=re.M)
+    if preview:
+        assert len(read_video(work / preview.group(1)).frames) > 1

@@ -56,6 +56,7 @@ def inputs(tmp_path_factory):
     cv2.imwrite(str(d / "empty_mask.png"), np.zeros((48, 48), np.uint8))
     (d / "corrupt.png").write_bytes(b"\x89PNG\r\n\x1a\n" + os.urandom(200))
     (d / "target.webp").write_bytes(b"RIFF")
+    cv2.imwrite(str(d / "tiny.png"), np.full((6, 48, 3), 200, np.uint8))
 
     g = Gaussians.from_rgb(np.array([[0.0, 0.0, 3.0], [0.2, 0, 3]]), np.full((2, 3), 0.5), np.array([0.3, 0.2]))
     write_ply(d / "scene.ply", g)
@@ -129,6 +130,7 @@ CASES = {
     "run one frame": (replace(RUN, "{in}/frames", "{in}/one_frame"), "at least 2"),
     "run missing target": (replace(RUN, "{in}/target.png", "{in}/nothing.png"), "does not exist"),
     "run corrupt target": (replace(RUN, "{in}/target.png", "{in}/corrupt.png"), "cannot read image"),
+    "run tiny target": (replace(RUN, "{in}/target.png", "{in}/tiny.png"), "48x6 pixels"),
     # masks
     "extract masks missing": (replace(EXTRACT, "{in}/masks", "{in}/nomasks"), "does not exist"),
     "extract masks empty": (replace(EXTRACT, "{in}/masks", "{in}/masks_empty"), "empty"),
@@ -178,12 +180,18 @@ CASES = {
                    ("--smooth", "inf"), ("--parts", "0")]},
     "extract end before start": (EXTRACT + ["--start", "3", "--end", "2"], "end"),
     "transfer dolly amount": (TRANSFER + ["--camera", "dolly", "--camera-amount", "2"], "dolly"),
+    "transfer orbit amount": (TRANSFER + ["--camera", "orbit", "--camera-amount", "1e9"], "orbit"),
     "render background": (RENDER + ["--background", "1,2"], "--background"),
     # outputs
-    **{f"{cmd[0]} output folder missing": (replace(cmd, cmd[cmd.index("-o") + 1],
-                                                   "{out}/missing/" + cmd[cmd.index("-o") + 1].split("/")[-1]),
-                                           "does not exist")
+    **{f"{cmd[0]} output folder is a file": (replace(cmd, cmd[cmd.index("-o") + 1],
+                                                     "{in}/clip.xyz/" + cmd[cmd.index("-o") + 1].split("/")[-1]),
+                                             "does not exist")
        for cmd in (TRANSFER, RUN, EXTRACT, RENDER)},
+    **{f"{cmd[0]} output is an input": (replace(cmd, cmd[cmd.index("-o") + 1], "{in}/" + name), words)
+       for cmd, name, words in [(TRANSFER, "target.png", "target.png is also TARGET"),
+                                (RUN, "frames/out.mp4", "frames/out.mp4 is inside SOURCE"),
+                                (EXTRACT, "masks", "masks is also --masks"),
+                                (RENDER, "camera.json", "camera.json is also --camera")]},
     **{f"{cmd[0]} output is a folder": (replace(cmd, cmd[cmd.index("-o") + 1],
                                                 "{out}/sub" + Path(cmd[cmd.index("-o") + 1]).suffix), "folder")
        for cmd in (EXTRACT, RENDER)},
