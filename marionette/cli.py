@@ -539,7 +539,7 @@ class _Playback:
     camera_amount: float | None
     camera_path: Path | None
     ply_dir: Path | None
-    target_mask: Path | None
+    target_mask: Path | np.ndarray | None  # a mask file, or the (H, W) bool mask found in the photo
     target_prompt: Prompt | None
     target_depth: Path | None
     shape: str
@@ -588,14 +588,14 @@ def _playback(output: Path, target: Path, frames, speed, loop, reverse, rotation
         raise InputError(f"--polish must be a number of steps within 0..10000, got {polish}")
     if target_mask is not None and not target_mask.is_file():
         raise InputError(f"target mask {target_mask} does not exist")
-    pipeline.check_target(target, target_mask, target_depth, target_prompt)
     background = checked("--background", parse_scene_background, background)
     if background == "scene" and target.suffix.lower() == ".ply":
         raise InputError("--background scene needs an image target: a .ply has no scene around it")
+    found = pipeline.check_target(target, target_mask, target_depth, target_prompt)  # the last check: the slowest
     return _Playback(frames, speed, loop, reverse, rotation_scale, translation_scale, fps,
                      background, checked("--size", parse_size, size),
-                     camera, camera_amount, camera_path, ply_dir, target_mask, target_prompt, target_depth, shape,
-                     polish, anchor, motion, checked("--part-seed", parse_part_seeds, part_seed or None), refine,
+                     camera, camera_amount, camera_path, ply_dir, target_mask if found is None else found, target_prompt,
+                     target_depth, shape, polish, anchor, motion, checked("--part-seed", parse_part_seeds, part_seed or None), refine,
                      preview, splats)
 
 

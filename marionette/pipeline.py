@@ -41,7 +41,7 @@ from .source import ExtractOptions, extract_prior
 from .source.depth import read_depth_map, read_depths
 from .source.foreground import auto_masks
 from .source.prompted import prompted_masks
-from .target.lift import LiftedTarget, LiftOptions, alpha_mask, lift_image
+from .target.lift import LiftedTarget, LiftOptions, alpha_mask, lift_image, object_mask
 from .trajectory import Trajectory
 from .transfer.controls import retime, scale_motion
 from .transfer.parts import labels_from_seeds, seeds_from_layout
@@ -199,14 +199,16 @@ def relative_depth(prior: SpatPrior, limits: tuple[float, float] = (2.0, 200.0))
     return float(np.clip(np.linalg.norm(centre) / prior.radii.max(), *limits))
 
 
-def load_target(target: str | Path, *, size: tuple[int, int] | None = None, mask: str | Path | None = None,
+def load_target(target: str | Path, *, size: tuple[int, int] | None = None,
+                mask: str | Path | np.ndarray | None = None,
                 depth: str | Path | None = None, options: LiftOptions = LiftOptions(),
                 prior: SpatPrior | None = None, prompt: Prompt | None = None) -> LiftedTarget:
     """Target image (RGB/RGBA) or 3DGS ``.ply`` → Gaussians with a reference camera.
 
     With a ``prior``, an image is lifted at the source's relative depth
     (:func:`relative_depth`) unless ``options`` sets one. ``mask`` is an
-    image file marking the object (default: alpha, plain-background key,
+    image file marking the object, or that mask as an (H, W) bool array at
+    the image's own size (:func:`check_target` finds it) (default: alpha, plain-background key,
     salient-object model, GrabCut; see
     :func:`~marionette.target.lift.object_mask`). ``depth`` is a depth
     map file of the image (16-bit PNG in millimetres, or ``.npy``; any
@@ -243,7 +245,7 @@ def load_target(target: str | Path, *, size: tuple[int, int] | None = None, mask
     return lift_image(image, mask=object_pixels, depth_map=depth_map, options=options)
 
 
-def _read_target_image(path: Path, mask: str | Path | None, depth: str | Path | None = None,
+def _read_target_image(path: Path, mask: str | Path | np.ndarray | None, depth: str | Path | None = None,
                        prompt: Prompt | None = None) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
     """(H, W, 3|4) uint8 target image, its (H, W) bool mask and (H, W) depth map files' content if given; checked
     (a ``prompt`` against the image's size)."""
@@ -257,27 +259,37 @@ def _read_target_image(path: Path, mask: str | Path | None, depth: str | Path | 
     if mask is None:
         alpha_mask(image)  # a fully transparent image is refused here
         return image, None, depth_map
-    object_pixels = read_mask(mask)
+    object_pixels = mask if isinstance(mask, np.ndarray) else read_mask(mask)
     if object_pixels.shape != image.shape[:2]:
-        raise InputError(f"target mask {Path(mask).name} is {object_pixels.shape[1]}x{object_pixels.shape[0]} "
+        raise InputError(f"target mask {getattr(mask, 'name', 'given')} is {object_pixels.shape[1]}x{object_pixels.shape[0]} "
                          f"but the target image is {image.shape[1]}x{image.shape[0]}")
     return image, object_pixels, depth_map
 
 
 def check_target(target: str | Path, mask: str | Path | None = None, depth: str | Path | None = None,
-                 prompt: Prompt | None = None) -> None:
+                 prompt: Prompt | None = None) -> np.ndarray | None:
     """Reject a target (and its mask and depth files, its prompt) that cannot be lifted, before any long work:
-    unreadable, or an image with a side outside 16..MAX_IMAGE_SIDE pixels."""
+    unreadable, an image with a side outside 16..MAX_IMAGE_SIDE pixels, or one where no object is found.
+
+    Returns the (H, W) bool object mask found in an image given without a mask or a prompt (for
+    :func:`load_target`'s ``mask``, so that it is not searched for twice), else None.
+    """
     path = Path(target)
     if path.suffix.lower() == ".ply":
         if mask is not None or depth is not None or prompt is not None:
             raise InputError("a target mask, prompt or depth map applies to an image target, not to a .ply")
         read_ply(path)
-        return
+        return None
     image = _read_target_image(path, mask, depth, prompt)[0]
     if not 16 <= min(image.shape[:2]) <= max(image.shape[:2]) <= MAX_IMAGE_SIDE:
         raise InputError(f"target image {path.name} is {image.shape[1]}x{image.shape[0]} pixels: its sides must be "
                          f"within 16..{MAX_IMAGE_SIDE}")
+    if mask is not None or prompt is not None:
+        return None
+    try:
+        return object_mask(image)
+    except InputError as e:
+        raise InputError(f"target image {path.name}: {e}") from None
 
 
 def check_part_seeds(prior: SpatPrior, part_seeds: dict[int, tuple[float, float]]) -> None:

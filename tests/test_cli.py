@@ -342,7 +342,8 @@ def test_missing_output_folders_are_made_and_removed_again_if_the_command_fails(
     assert one_error_line(capsys) == f"error: cannot make output folder {clear / 'x'}: Not a directory"
 
 
-@pytest.mark.parametrize("name, image", [("tiny", np.full((6, 40, 3), 200, np.uint8)), ("corrupt", None)])
+@pytest.mark.parametrize("name, image", [("tiny", np.full((6, 40, 3), 200, np.uint8)), ("corrupt", None),
+                                         ("blank", np.full((300, 400, 3), 128, np.uint8))])
 def test_run_checks_the_target_before_it_reads_the_source(tmp_path, capsys, monkeypatch, name, image):
     from marionette import pipeline
 

@@ -106,6 +106,8 @@ def grabcut_mask(image: np.ndarray, *, rect: tuple[int, int, int, int] | None = 
     """
     check_image(image)
     H, W = image.shape[:2]
+    if not np.ptp(image.reshape(-1, 3), axis=0).any():  # OpenCV's colour models stall on one colour (a minute)
+        raise InputError("no object found in the image: it is all one colour")
     if iterations < 1:
         raise InputError(f"iterations must be at least 1, got {iterations}")
     labels = np.zeros((H, W), np.uint8)
