@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import warnings
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import replace
 from pathlib import Path
 
@@ -414,9 +414,12 @@ def frames_unseen(trajectory: Trajectory, cameras: Sequence[Camera]) -> int:
 
 def render_frames(gaussians: Gaussians, trajectory: Trajectory, camera: Camera | Sequence[Camera],
                   background: tuple[float, float, float] | SceneCompositor = (1.0, 1.0, 1.0),
-                  progress=None) -> Iterator[np.ndarray]:
+                  progress=None, on_alpha: Callable[[int, np.ndarray], None] | None = None) -> Iterator[np.ndarray]:
     """Yield (H, W, 3) uint8 frames of the moving Gaussians, from one camera or one per frame, over a colour
-    or inside a photo's scene (a :class:`~marionette.scene.SceneCompositor` of these Gaussians)."""
+    or inside a photo's scene (a :class:`~marionette.scene.SceneCompositor` of these Gaussians).
+
+    ``on_alpha(t, alpha)``, over a colour: each frame's (H, W) alpha, as it is rendered (e.g. to score the
+    silhouette without rendering twice)."""
     cameras = [camera] * trajectory.num_frames if isinstance(camera, Camera) else list(camera)
     if len(cameras) != trajectory.num_frames:
         raise InputError(f"{len(cameras)} cameras for {trajectory.num_frames} frames")
@@ -424,7 +427,10 @@ def render_frames(gaussians: Gaussians, trajectory: Trajectory, camera: Camera |
         if isinstance(background, SceneCompositor):
             frame = background.frame(trajectory.frame(gaussians, t), trajectory.frame(background.features, t), cam)
         else:
-            image = render(trajectory.frame(gaussians, t), cam, background).image  # in [0, 1], ours to change
+            out = render(trajectory.frame(gaussians, t), cam, background)
+            if on_alpha is not None:
+                on_alpha(t, out.alpha)
+            image = out.image  # in [0, 1], ours to change
             image *= 255
             image += 0.5
             frame = image.astype(np.uint8)
@@ -436,14 +442,14 @@ def render_frames(gaussians: Gaussians, trajectory: Trajectory, camera: Camera |
 def render_video(path: str | Path, target: LiftedTarget | Gaussians, trajectory: Trajectory,
                  camera: Camera | Sequence[Camera] | None = None, *, fps: float,
                  background: tuple[float, float, float] | SceneCompositor = (1.0, 1.0, 1.0),
-                 reporter: Reporter | None = None) -> None:
+                 reporter: Reporter | None = None, on_alpha: Callable[[int, np.ndarray], None] | None = None) -> None:
     """Render the trajectory and write it (MP4, GIF or a PNG folder, by suffix).
 
     ``target`` is a lifted target (its reference camera, zoomed out to keep
     the motion in frame, is the default ``camera``; inside a scene, the
     photo's camera as it is) or bare Gaussians, which need a ``camera`` (one,
     or one per frame). ``background``: a colour, or the photo's scene
-    (:func:`scene_compositor`).
+    (:func:`scene_compositor`). ``on_alpha``: see :func:`render_frames`.
     """
     reporter = reporter or Reporter(quiet=True)
     if isinstance(target, LiftedTarget):
@@ -455,7 +461,7 @@ def render_video(path: str | Path, target: LiftedTarget | Gaussians, trajectory:
     else:
         gaussians = target
     with reporter.stage("rendering", trajectory.num_frames) as progress:
-        write_video(path, render_frames(gaussians, trajectory, camera, background, progress), fps)
+        write_video(path, render_frames(gaussians, trajectory, camera, background, progress, on_alpha), fps)
 
 
 def write_ply_frames(folder: str | Path, gaussians: Gaussians, trajectory: Trajectory) -> list[Path]:

@@ -60,6 +60,9 @@ def test_self_transfer_reproduces_the_rigid_synthetic_source(scene, evaluated):
     assert metrics["ssim"] > 0.95
     assert metrics["motion_fidelity"] > 0.8
     assert metrics["lpips"] is None and metrics["lpips_skipped"]
+    # every frame rendered in full: on its mask, nothing stray, no pose interpolated
+    assert metrics["silhouette"]["iou_worst"] > 0.9 and metrics["silhouette"]["stray_frames"] == []
+    assert metrics["failed_frames"] == []
     for name in ("video.mp4", "side_by_side.mp4", "metrics.png", "frames.csv", "metrics.json"):
         assert (root / "out" / name).stat().st_size > 0
     assert not [p for p in (root / "out").iterdir() if p.name.startswith(".")]  # no temporary files left

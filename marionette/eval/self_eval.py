@@ -34,6 +34,7 @@ from ..target.lift import LiftedTarget, LiftOptions, lift_image
 from .fidelity import motion_fidelity
 from .lpips import LPIPS, find_weights
 from .metrics import LPIPS_SKIPPED, frame_metrics, on_white
+from .silhouette import SilhouetteReport, silhouette_frame
 
 __all__ = ["eval_self", "self_target", "EVAL_EXTRACT", "EVAL_SELF_OUTPUTS", "EVAL_TARGETS"]
 
@@ -116,7 +117,10 @@ def eval_self(source: str | Path, masks: str | Path | None = None, output_dir: s
     dict, the content of ``metrics.json``: means ``psnr`` (dB), ``ssim``,
     ``lpips`` (when weights are found, see :mod:`~marionette.eval.lpips`;
     else None, with ``lpips_skipped`` saying why), ``motion_fidelity``,
-    and the clip's size. The metrics are computed from ``video.mp4`` as
+    ``silhouette`` (the render's alpha against the masks, every frame in
+    full: :class:`~marionette.eval.silhouette.SilhouetteReport`),
+    ``failed_frames`` (the part-frames whose poses were interpolated)
+    and the clip's size. The image metrics are computed from ``video.mp4`` as
     written (decoded back), so they include the codec's loss and agree with
     any recomputation from the files.
     """
@@ -146,7 +150,13 @@ def eval_self(source: str | Path, masks: str | Path | None = None, output_dir: s
         gaussians, camera = rec.gaussians, Camera(prior.intrinsics, np.eye(4), w, h)
         trajectory = rec.trajectory(prior)
         fit = rec.quality.summary()
-    pipeline.render_video(files["video"], gaussians, trajectory, camera, fps=video.fps, reporter=reporter)
+    silhouette = np.empty((t, 2))  # per frame: IoU against the mask, share of the frame drawn stray
+
+    def score(i: int, alpha: np.ndarray) -> None:
+        silhouette[i] = silhouette_frame(alpha, mask_stack[i])
+
+    pipeline.render_video(files["video"], gaussians, trajectory, camera, fps=video.fps, reporter=reporter,
+                          on_alpha=score)
     rendered = read_video(files["video"]).frames[:, :h, :w]  # as written: codec loss included
     reference = on_white(frames, mask_stack)
     with reporter.stage("PSNR and SSIM", 1) as progress:
@@ -174,6 +184,9 @@ def eval_self(source: str | Path, masks: str | Path | None = None, output_dir: s
                      "target = the source object reconstructed from every frame with the extracted prior; each part "
                      "moved by its poses") + "; rendered with the source camera on white; compared with source "
                     "frames masked onto white, whole frames",
+        "silhouette": SilhouetteReport(silhouette[:, 0], silhouette[:, 1]).summary(),
+        "failed_frames": list(prior.metadata.get("failed_frames") or {}),  # "part:frame", poses interpolated
+        "recovered_frames": len(prior.metadata.get("recovered_frames") or {}),
         "camera_motion": prior.metadata.get("camera_motion"),
         "focal_px": float(prior.intrinsics[0, 0]), "focal": prior.metadata.get("focal"),
         **({} if fit is None else {"reconstruction_fit": fit}),
