@@ -229,6 +229,20 @@ def test_bad_input_is_rejected(hinge):
         segment_parts(few, mask, k)
 
 
+@pytest.mark.parametrize("num_parts", [2, "auto"])
+def test_tracks_that_miss_the_first_frame_are_a_reason_not_a_crash(hinge, num_parts):
+    """Automatic masks can miss the object in the first frame, so no track is on it there, while later frames
+    hold many: that is said, where it crashed in the noise estimate (argmin of an empty sequence)."""
+    scene, tracks = hinge
+    visible = tracks.visible.copy()
+    visible[0] = False
+    uv = tracks.uv.copy()
+    uv[0] = np.nan
+    late = Tracks(uv, visible, np.maximum(tracks.start, 1))
+    with pytest.raises(InputError, match="0 tracks are on the object in the first frame"):
+        segment_parts(late, scene.masks[0], scene.camera.K, num_parts)
+
+
 # --- real footage --------------------------------------------------------------------------------------------------
 
 

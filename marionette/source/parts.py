@@ -414,6 +414,8 @@ def _spread(xy: np.ndarray, ids: np.ndarray, count: int) -> np.ndarray:
 
     Farthest-point sampling from the track nearest their centre.
     """
+    if len(ids) == 0:
+        return ids
     xy = xy[ids]
     dist = np.linalg.norm(xy - xy.mean(axis=0), axis=1)
     seeds = [int(np.argmin(dist))]
@@ -704,10 +706,14 @@ def segment_parts(tracks: Tracks, object_mask0: np.ndarray, K: np.ndarray, num_p
     kept = np.arange(0, tracks.num_frames, -(-tracks.num_frames // max_frames))
     visible = tracks.visible[kept]
     usable = visible.sum(axis=0) >= min_length
-    min_part = max(8, int(0.05 * (usable & visible[0]).sum()))
+    at_first = int((usable & visible[0]).sum())
+    min_part = max(8, int(0.05 * at_first))
     if usable.sum() < min_part:
         raise InputError(f"segment_parts: {usable.sum()} tracks are visible in at least {min_length} frames; "
                          f"at least {min_part} are needed")
+    if at_first < min_part:  # parts are found and labelled on the first frame
+        raise InputError(f"segment_parts: {at_first} tracks are on the object in the first frame; at least "
+                         f"{min_part} are needed there (start where the object is in view)")
     uv = tracks.uv[kept][:, usable].astype(np.float64)
     vis = visible[:, usable]
     homogeneous = np.concatenate([np.nan_to_num(uv), np.ones(uv.shape[:2] + (1,))], axis=2)
