@@ -335,7 +335,8 @@ Focal = Annotated[Optional[str], typer.Option(
     help="Focal length in pixels, or 'auto' (default: a 60° wide view).", rich_help_panel=SOURCE)]
 EvalFocal = Annotated[str, typer.Option(
     help="Focal length in pixels, or 'auto' to estimate it from the motion.", rich_help_panel=SOURCE)]
-Parts = Annotated[str, typer.Option(help="Number of moving rigid parts, or 'auto' to choose.", rich_help_panel=MOTION)]
+Parts = Annotated[str, typer.Option(help="Rigid parts in all, a static one included, or 'auto'.",
+                                     rich_help_panel=MOTION)]
 Start = Annotated[int, typer.Option(help="First source frame to use.", rich_help_panel=SOURCE)]
 End = Annotated[Optional[int], typer.Option(help="Source frame to stop before (default: the end).",
                                             rich_help_panel=SOURCE)]

@@ -208,6 +208,26 @@ def test_hinge_lid_rotation(hinge):
     assert np.median(rotation_errors(prior.poses[lid], scene.poses[1])[1:]) < 1.0
 
 
+def test_parts_asked_for_count_the_static_one(hinge):
+    """The hinge's body stays still and its lid opens: two parts asked for are the lid and the static body, as
+    'auto' finds them."""
+    scene, auto = hinge
+    prior = extract_prior(scene.frames, scene.masks, scene.camera.K, scene.fps, options=ExtractOptions(parts=2))
+    assert prior.num_parts == 2
+    turned = rotation_angle_deg(prior.poses[:, -1, :3, :3])
+    assert sorted(turned.round(1))[0] == 0.0 and turned.max() > 45  # a static body and a turning lid
+    labels, truth = prior.extras["labels"], scene.part_masks[0]
+    on = truth >= 0
+    assert max(np.mean(labels[on] == truth[on]), np.mean(labels[on] == 1 - truth[on])) >= 0.95
+
+
+def test_a_count_of_parts_the_tracks_do_not_show_is_an_error_not_fewer():
+    frames = np.repeat(wave_texture()[None], 4, axis=0)
+    masks = np.repeat(disc(60)[None], 4, axis=0)
+    with pytest.raises(InputError, match="2 parts were asked for, but no part moves"):
+        extract_prior(frames, masks, K, 24.0, options=ExtractOptions(parts=2))
+
+
 def test_one_part_when_asked():
     scene = make_scene("hinge", seed=0, num_frames=8, size=(160, 120))
     prior = extract_prior(scene.frames, scene.masks, scene.camera.K, scene.fps, options=ExtractOptions(parts=1))

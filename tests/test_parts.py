@@ -239,7 +239,7 @@ def test_tracks_that_miss_the_first_frame_are_a_reason_not_a_crash(hinge, num_pa
     uv = tracks.uv.copy()
     uv[0] = np.nan
     late = Tracks(uv, visible, np.maximum(tracks.start, 1))
-    with pytest.raises(InputError, match="0 tracks are on the object in the first frame"):
+    with pytest.raises(InputError, match="no track is on the object in the first frame"):
         segment_parts(late, scene.masks[0], scene.camera.K, num_parts)
 
 

@@ -68,7 +68,10 @@ class ExtractOptions:
         (same defaults: 6 px grid, 21 px window, 3 pyramid levels, 1 px
         forward-backward threshold, re-seeding every 4 frames, texture 2e-4).
     parts : int or "auto"
-        Number of rigid parts; ``"auto"`` picks it by model selection.
+        Number of rigid parts in all, a static one (what stays still: a
+        cabinet under its door, a box under its lid) included when its tracks
+        show one; ``"auto"`` picks the count by model selection. A count the
+        tracks do not show is an :class:`InputError` saying what they show.
     smoothing : float
         Strength of the SE(3) temporal smoothing (0: off); see
         :func:`~marionette.source.smoothing.smooth_poses`.
@@ -195,6 +198,11 @@ _HINGE_TOLERANCE_PX = 0.25
 _HINGE_MIN_TRACKS = 3
 #: How the note of such a frame in the metadata's ``recovered_frames`` begins.
 HINGE_NOTE = "turned about the hinge"
+
+
+def _rigid_groups(seg) -> int:
+    """Moving parts of a segmentation, plus its static group when it holds first-frame pixels."""
+    return seg.num_parts + int((seg.pixel_labels == STATIC).any())
 
 
 def _fit_joints(parts: list[_Part], tracks: Tracks, track_labels: np.ndarray, masks: np.ndarray, k: np.ndarray,
@@ -391,6 +399,8 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
         reason = (f"only {tracks.num_tracks} trackable points on the object (too little texture, or a tiny mask)"
                   if few else f"no motion detected (90th percentile of the track displacements {motion:.2f} px < "
                   f"{options.motion_threshold} px)")
+        if options.parts not in (1, "auto"):
+            raise InputError(f"{options.parts} parts were asked for, but no part moves: {reason}")
         warnings.warn(f"{reason}: returning the identity prior", stacklevel=2)
         stages.timings["total"] = time.perf_counter() - start
         metadata.update(failed_frames={}, recovered_frames={}, no_motion=not few, motion_px=motion)
@@ -406,12 +416,19 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
         groups = [0]
     else:
         with stages("parts", "finding parts", 1) as progress:
-            seg = segment_parts(chains, masks[0], k, options.parts,
-                                whole=whole_object_poses(chains, whole, options.rigid))
+            whole_poses = whole_object_poses(chains, whole, options.rigid)
+            seg = segment_parts(chains, masks[0], k, options.parts, whole=whole_poses)
+            if options.parts != "auto" and _rigid_groups(seg) > options.parts:  # a static part counts among them
+                seg = segment_parts(chains, masks[0], k, options.parts - 1, whole=whole_poses)
             progress(1, 1)
         chain_labels = _propagate_labels(chains, seg.track_labels, OUTLIER, radius=3.0 * options.spacing)
         pixel_labels = seg.pixel_labels
         groups = list(range(seg.num_parts)) + ([STATIC] if (pixel_labels == STATIC).any() else [])
+        if options.parts != "auto" and len(groups) != options.parts:
+            still = " and a static one" if STATIC in groups else ""
+            raise InputError(f"{options.parts} parts were asked for, but the tracks show {seg.num_parts} moving "
+                             f"part(s){still} (a part needs 5 % of the first frame's tracks moving alike); ask for "
+                             f"{len(groups)}, or 'auto'")
         # Rounded: the scores' last digits follow the BLAS thread count, and the metadata should not.
         metadata["part_selection"] = {str(n): round(float(score), 3) for n, score in seg.scores.items()}
         metadata["part_selection_note"] = seg.selection

@@ -711,9 +711,9 @@ def segment_parts(tracks: Tracks, object_mask0: np.ndarray, K: np.ndarray, num_p
     if usable.sum() < min_part:
         raise InputError(f"segment_parts: {usable.sum()} tracks are visible in at least {min_length} frames; "
                          f"at least {min_part} are needed")
-    if at_first < min_part:  # parts are found and labelled on the first frame
-        raise InputError(f"segment_parts: {at_first} tracks are on the object in the first frame; at least "
-                         f"{min_part} are needed there (start where the object is in view)")
+    if not at_first:  # parts are found and labelled on the first frame
+        raise InputError("segment_parts: no track is on the object in the first frame (start where the object "
+                         "is in view)")
     uv = tracks.uv[kept][:, usable].astype(np.float64)
     vis = visible[:, usable]
     homogeneous = np.concatenate([np.nan_to_num(uv), np.ones(uv.shape[:2] + (1,))], axis=2)
