@@ -60,6 +60,7 @@ BENCHES = (
     Bench("bench_reproducibility_real.py", "reproducibility_real.md", needs_data=True),
     Bench("bench_foreground.py", "foreground.md", needs_data=True),
     Bench("bench_rasterizer.py", "rasterizer.md", quick=("--runs", "3", "--no-reference")),
+    Bench("bench_mesh_target.py", "mesh_target.md", quick=("--runs", "1")),
     Bench("bench_transfer.py", "transfer.md", quick=("--runs", "1", "--gaussians", "50000")),
     Bench("bench_ablation.py", "ablation.md", needs_data=True),
     Bench("paper_setting.py", "paper_setting.md", quick=("--runs", "1")),
@@ -99,7 +100,8 @@ GROUPS = (
     ("Motion extraction", ("extract.md", "tracks.md", "parts.md", "focal.md", "bundle.md", "recover.md",
                            "lid_information.md", "lid_relief.md", "extract_real.md", "foreground.md", "prompt.md",
                            "reproducibility_real.md")),
-    ("The target, the transfer and the scene", ("lift.md", "scene.md", "ablation.md", "transfer.md")),
+    ("The target, the transfer and the scene", ("lift.md", "mesh_target.md", "scene.md", "ablation.md",
+                                                 "transfer.md")),
     ("Speed and memory", ("paper_setting.md", "rasterizer.md", "rasterizer_grad.md", "scaling.md", "memory.md",
                           "first_run.md", "suite.md", "app.md")),
 )

@@ -480,7 +480,7 @@ Background = Annotated[str, typer.Option(help="Background colour R,G,B (0-1 or 0
 SceneBackground = Annotated[str, typer.Option(
     "--background", help="Background R,G,B (0-1 or 0-255), or 'scene': the photo's own.", rich_help_panel=OUTPUT)]
 Size = Annotated[Optional[str], typer.Option(
-    metavar="WxH", help="Output size (default: the photo's; 512x512 for a .ply).", rich_help_panel=OUTPUT)]
+    metavar="WxH", help="Output size (default: the photo's; 512x512 for 3D).", rich_help_panel=OUTPUT)]
 CameraMove = Annotated[str, typer.Option("--camera", help="Camera move: static, orbit or dolly.",
                                          rich_help_panel=CAMERA)]
 CameraAmount = Annotated[Optional[float], typer.Option(
@@ -521,6 +521,10 @@ Report = Annotated[Optional[Path], typer.Option(
     help="Also write a JSON report: motion fidelity, rigidity, jerk.", rich_help_panel=OUTPUT)]
 SideBySide = Annotated[Optional[Path], typer.Option(help="Also write the source beside the result (.mp4 or .gif).",
                                                     rich_help_panel=OUTPUT)]
+
+
+TargetPath = Annotated[Path, typer.Argument(
+    help="Target image (RGB/RGBA), 3DGS .ply or mesh (.glb, .gltf, .obj, .ply).")]
 
 
 @dataclass(frozen=True)
@@ -590,14 +594,14 @@ def _playback(output: Path, target: Path, frames, speed, loop, reverse, rotation
     if target_mask is not None and not target_mask.is_file():
         raise InputError(f"target mask {target_mask} does not exist")
     background = checked("--background", parse_scene_background, background)
-    if background == "scene" and target.suffix.lower() == ".ply":
-        raise InputError("--background scene needs an image target: a .ply has no scene around it")
+    if background == "scene" and pipeline.is_3d_target(target):
+        raise InputError(f"--background scene needs an image target: {target.name} has no scene around it")
     found = pipeline.check_target(target, target_mask, target_depth, target_prompt)  # the last check: the slowest
     return _Playback(frames, speed, loop, reverse, rotation_scale, translation_scale, fps,
                      background, checked("--size", parse_size, size),
-                     camera, camera_amount, camera_path, ply_dir, target_mask if found is None else found, target_prompt,
-                     target_depth, shape, polish, anchor, motion, checked("--part-seed", parse_part_seeds, part_seed or None), refine,
-                     preview, splats)
+                     camera, camera_amount, camera_path, ply_dir, target_mask if found is None else found,
+                     target_prompt, target_depth, shape, polish, anchor, motion,
+                     checked("--part-seed", parse_part_seeds, part_seed or None), refine, preview, splats)
 
 
 def _transfer_and_render(prior, target: Path, output: Path, play: _Playback, session: _Session):
@@ -669,7 +673,7 @@ def _transfer_and_render(prior, target: Path, output: Path, play: _Playback, ses
 
 @app.command(cls=_Command)
 def transfer(prior: Annotated[Path, typer.Argument(help="SpaT prior .npz.")],
-             target: Annotated[Path, typer.Argument(help="Target image (RGB/RGBA) or 3DGS .ply.")],
+             target: TargetPath,
              output: Output, frames: Frames = None, speed: Speed = 1.0, loop: Loop = "hold", reverse: Reverse = False,
              rotation_scale: RotationScale = 1.0, translation_scale: TranslationScale = 1.0, fps: Fps = None,
              background: SceneBackground = "1,1,1", size: Size = None, camera: CameraMove = "static",
@@ -691,7 +695,7 @@ def transfer(prior: Annotated[Path, typer.Argument(help="SpaT prior .npz.")],
 
 @app.command(cls=_Command)
 def run(source: Annotated[Path, typer.Argument(help="Video file or folder of frames.")],
-        target: Annotated[Path, typer.Argument(help="Target image (RGB/RGBA) or 3DGS .ply.")],
+        target: TargetPath,
         output: Output, masks: Masks = None, depth: Depth = None, focal: Focal = None, parts: Parts = "1",
         start: Start = 0, end: End = None, stride: Stride = 1, max_side: MaxSide = DEFAULT_MAX_SIDE,
         max_pixels: MaxPixels = DEFAULT_MAX_PIXELS, smooth: Smooth = 1.0, plot: Plot = None,

@@ -42,6 +42,7 @@ from .source.depth import read_depth_map, read_depths
 from .source.foreground import auto_masks
 from .source.prompted import prompted_masks
 from .target.lift import LiftedTarget, LiftOptions, alpha_mask, lift_image, object_mask
+from .target.mesh import MESH_SUFFIXES, is_mesh_file, mesh_gaussians
 from .trajectory import Trajectory
 from .transfer.controls import retime, scale_motion
 from .transfer.parts import labels_from_seeds, seeds_from_layout
@@ -49,7 +50,8 @@ from .transfer.refine import RefineOptions
 from .transfer.velocity import integrate
 
 __all__ = ["extract", "source_masks", "reconstruct",
-           "load_target", "relative_depth", "check_target", "check_part_seeds", "transfer", "output_cameras",
+           "load_target", "relative_depth", "check_target", "is_3d_target", "check_part_seeds", "transfer",
+           "output_cameras",
            "fit_view", "scene_compositor", "frames_outside", "frames_unseen", "render_frames", "render_video",
            "write_ply_frames", "side_by_side", "write_side_by_side", "write_preview", "source_intrinsics",
            "focal_setting", "DEFAULT_MAX_SIDE", "PLY_FRAME_NAME"]
@@ -203,7 +205,7 @@ def load_target(target: str | Path, *, size: tuple[int, int] | None = None,
                 mask: str | Path | np.ndarray | None = None,
                 depth: str | Path | None = None, options: LiftOptions = LiftOptions(),
                 prior: SpatPrior | None = None, prompt: Prompt | None = None) -> LiftedTarget:
-    """Target image (RGB/RGBA) or 3DGS ``.ply`` → Gaussians with a reference camera.
+    """Target image (RGB/RGBA), 3DGS ``.ply`` or textured mesh → Gaussians with a reference camera.
 
     With a ``prior``, an image is lifted at the source's relative depth
     (:func:`relative_depth`) unless ``options`` sets one. ``mask`` is an
@@ -215,13 +217,14 @@ def load_target(target: str | Path, *, size: tuple[int, int] | None = None,
     unit) that shapes the front surface instead of the inflated silhouette.
     ``prompt`` (points and a box in the image's own pixels) picks the object
     instead of the automatic mask
-    (:func:`~marionette.segment.prompt.prompted_mask`). A ``.ply`` is taken
-    as it is and viewed from the front (along +z) at ``size`` (512x512 by
-    default).
+    (:func:`~marionette.segment.prompt.prompted_mask`). A 3DGS ``.ply`` is
+    taken as it is, a mesh (``.glb``, ``.gltf``, ``.obj``, ``.ply`` with
+    faces) sampled into surfels (:mod:`~marionette.target.mesh`); either is
+    viewed from the front (along +z) at ``size`` (512x512 by default).
     """
     path = Path(target)
-    if path.suffix.lower() == ".ply":
-        g = read_ply(path)
+    if is_3d_target(path):
+        g = mesh_gaussians(path) if is_mesh_file(path) else read_ply(path)
         width, height = size or (512, 512)
         cam = _camera_for_splats(g, width, height)
         uv, z = cam.project(g.means)
@@ -261,7 +264,8 @@ def _read_target_image(path: Path, mask: str | Path | np.ndarray | None, depth: 
         return image, None, depth_map
     object_pixels = mask if isinstance(mask, np.ndarray) else read_mask(mask)
     if object_pixels.shape != image.shape[:2]:
-        raise InputError(f"target mask {getattr(mask, 'name', 'given')} is {object_pixels.shape[1]}x{object_pixels.shape[0]} "
+        h, w = object_pixels.shape
+        raise InputError(f"target mask {getattr(mask, 'name', 'given')} is {w}x{h} "
                          f"but the target image is {image.shape[1]}x{image.shape[0]}")
     return image, object_pixels, depth_map
 
@@ -275,10 +279,10 @@ def check_target(target: str | Path, mask: str | Path | None = None, depth: str 
     :func:`load_target`'s ``mask``, so that it is not searched for twice), else None.
     """
     path = Path(target)
-    if path.suffix.lower() == ".ply":
+    if is_3d_target(path):
         if mask is not None or depth is not None or prompt is not None:
-            raise InputError("a target mask, prompt or depth map applies to an image target, not to a .ply")
-        read_ply(path)
+            raise InputError(f"a target mask, prompt or depth map applies to an image target, not to {path.name}")
+        mesh_gaussians(path, count=64) if is_mesh_file(path) else read_ply(path)
         return None
     image = _read_target_image(path, mask, depth, prompt)[0]
     if not 16 <= min(image.shape[:2]) <= max(image.shape[:2]) <= MAX_IMAGE_SIDE:
@@ -290,6 +294,11 @@ def check_target(target: str | Path, mask: str | Path | None = None, depth: str 
         return object_mask(image)
     except InputError as e:
         raise InputError(f"target image {path.name}: {e}") from None
+
+
+def is_3d_target(path: str | Path) -> bool:
+    """Whether a target is 3D already (a 3DGS ``.ply`` or a mesh), not a photo to lift."""
+    return Path(path).suffix.lower() in MESH_SUFFIXES
 
 
 def check_part_seeds(prior: SpatPrior, part_seeds: dict[int, tuple[float, float]]) -> None:
@@ -384,7 +393,7 @@ def scene_compositor(target: LiftedTarget, *, inpaint: str = "fsr", detail: bool
     photo's own texture on the object (:mod:`marionette.scene.composite`).
     """
     if target.image is None:
-        raise InputError("a scene background needs an image target (a .ply has no scene around it)")
+        raise InputError("a scene background needs an image target (a .ply or a mesh has no scene around it)")
     if target.image.shape[2] == 4 and (target.image[..., 3] < 128).any():
         warnings.warn("the photo is transparent around its object: the scene is whatever colour lies under its "
                       "alpha", stacklevel=2)
