@@ -28,7 +28,7 @@ import typer
 from .camera import MAX_IMAGE_SIDE, Camera
 from .errors import InputError
 from .geometry import rotation_angle_deg
-from .io import read_ply, read_prior, write_image, write_ply, write_prior, write_splat_animation
+from .io import read_ply, read_prior, write_gltf_animation, write_image, write_ply, write_prior, write_splat_animation
 from .io.atomic import StagedOutputs, check_output_dir, check_output_folder, check_output_path, staged_outputs
 from .io.ply import PLY_FRAME_NAME
 from .io.video import DEFAULT_MAX_PIXELS, DEFAULT_MAX_SIDE, MASK_FRAME_NAME
@@ -56,7 +56,7 @@ PANELS = SOURCE, SELECTION, MOTION, PLAYBACK, TARGET, CAMERA, OUTPUT, PERFORMANC
     "General")
 
 #: Options that name an output; every other path a command takes is one of its inputs.
-OUTPUT_OPTIONS = ("output", "plot", "save_masks", "ply_dir", "splats", "preview", "side_by_side", "report")
+OUTPUT_OPTIONS = ("output", "plot", "save_masks", "ply_dir", "splats", "gltf", "preview", "side_by_side", "report")
 
 
 def _check_overwrites(ctx: typer.Context) -> None:
@@ -515,6 +515,8 @@ PlyDir = Annotated[Optional[Path], typer.Option(help="Also write each frame's Ga
                                                 rich_help_panel=OUTPUT)]
 Splats = Annotated[Optional[Path], typer.Option(
     help="Also write the animated Gaussians (.npz) for `marionette view`.", rich_help_panel=OUTPUT)]
+Gltf = Annotated[Optional[Path], typer.Option(
+    help="Also write the moving parts as glTF (.glb), a node per part.", rich_help_panel=OUTPUT)]
 Preview = Annotated[Optional[Path], typer.Option(help="Also write a small looping GIF preview.",
                                                  rich_help_panel=OUTPUT)]
 Report = Annotated[Optional[Path], typer.Option(
@@ -555,12 +557,13 @@ class _Playback:
     refine: bool
     preview: Path | None
     splats: Path | None
+    gltf: Path | None
 
 
 def _playback(output: Path, target: Path, frames, speed, loop, reverse, rotation_scale, translation_scale, fps,
               background, size,
               camera, camera_amount, camera_path, ply_dir, target_mask, target_prompt, target_depth, shape, polish,
-              anchor, motion, part_seed, refine, preview, splats) -> _Playback:
+              anchor, motion, part_seed, refine, preview, splats, gltf) -> _Playback:
     """Check every playback option (before any work starts) and the output paths."""
     from . import pipeline
     from .render.camera_path import CAMERA_MOVES, check_camera_move, load_camera_path
@@ -581,6 +584,7 @@ def _playback(output: Path, target: Path, frames, speed, loop, reverse, rotation
     _video_output(output)
     _output_file(preview, ".gif", "--preview")
     _output_file(splats, ".npz", "--splats")
+    _output_file(gltf, ".glb", "--gltf")
     if ply_dir is not None:
         check_output_folder(ply_dir, PLY_FRAME_NAME)
     if anchor not in ("centroid", "world"):
@@ -601,7 +605,7 @@ def _playback(output: Path, target: Path, frames, speed, loop, reverse, rotation
                      background, checked("--size", parse_size, size),
                      camera, camera_amount, camera_path, ply_dir, target_mask if found is None else found,
                      target_prompt, target_depth, shape, polish, anchor, motion,
-                     checked("--part-seed", parse_part_seeds, part_seed or None), refine, preview, splats)
+                     checked("--part-seed", parse_part_seeds, part_seed or None), refine, preview, splats, gltf)
 
 
 def _transfer_and_render(prior, target: Path, output: Path, play: _Playback, session: _Session):
@@ -668,6 +672,9 @@ def _transfer_and_render(prior, target: Path, output: Path, play: _Playback, ses
     if play.splats is not None:
         write_splat_animation(session.stage(play.splats), lifted.gaussians, trajectory, play.fps or prior.fps)
         session.output("splats", play.splats)
+    if play.gltf is not None:
+        write_gltf_animation(session.stage(play.gltf), lifted.gaussians, trajectory, play.fps or prior.fps)
+        session.output("gltf", play.gltf)
     return trajectory, video
 
 
@@ -682,13 +689,13 @@ def transfer(prior: Annotated[Path, typer.Argument(help="SpaT prior .npz.")],
              target_exclude: TargetExclude = None, target_depth: TargetDepth = None, shape: TargetShape = "auto",
              polish: Polish = 0, anchor: Anchor = "centroid", motion: Motion = "filmed",
              part_seed: PartSeed = None, refine: Refine = True,
-             preview: Preview = None, splats: Splats = None, quiet: Quiet = False, verbose: Verbose = False,
-             json_summary: Json = False, config: Config = None) -> None:
-    """Apply a SpaT prior to a target image or .ply and render the video."""
+             preview: Preview = None, splats: Splats = None, gltf: Gltf = None, quiet: Quiet = False,
+             verbose: Verbose = False, json_summary: Json = False, config: Config = None) -> None:
+    """Apply a SpaT prior to a target image, .ply or mesh and render the video."""
     play = _playback(output, target, frames, speed, loop, reverse, rotation_scale, translation_scale, fps,
                      background, size, camera, camera_amount, camera_path, ply_dir, target_mask,
                      _prompt("target", target_point, target_box, target_exclude), target_depth, shape,
-                     polish, anchor, motion, part_seed, refine, preview, splats)
+                     polish, anchor, motion, part_seed, refine, preview, splats, gltf)
     with _session("transfer", quiet, verbose, json_summary) as session:
         _transfer_and_render(read_prior(prior), target, output, play, session)
 
@@ -711,7 +718,8 @@ def run(source: Annotated[Path, typer.Argument(help="Video file or folder of fra
         target_exclude: TargetExclude = None, target_depth: TargetDepth = None, shape: TargetShape = "auto",
         polish: Polish = 0, anchor: Anchor = "centroid", motion: Motion = "filmed",
         part_seed: PartSeed = None, refine: Refine = True,
-        preview: Preview = None, splats: Splats = None, side_by_side: SideBySide = None, report: Report = None,
+        preview: Preview = None, splats: Splats = None, gltf: Gltf = None, side_by_side: SideBySide = None,
+        report: Report = None,
         quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False, config: Config = None) -> None:
     """Extract the source's motion and transfer it onto the target in one go."""
     from . import pipeline
@@ -719,7 +727,7 @@ def run(source: Annotated[Path, typer.Argument(help="Video file or folder of fra
     play = _playback(output, target, frames, speed, loop, reverse, rotation_scale, translation_scale, fps,
                      background, size, camera, camera_amount, camera_path, ply_dir, target_mask,
                      _prompt("target", target_point, target_box, target_exclude), target_depth, shape,
-                     polish, anchor, motion, part_seed, refine, preview, splats)
+                     polish, anchor, motion, part_seed, refine, preview, splats, gltf)
     prompt = _prompt("source", source_point, source_box, source_exclude)
     if side_by_side is not None:
         _video_output(side_by_side)
