@@ -51,10 +51,9 @@ from .transfer.velocity import integrate
 
 __all__ = ["extract", "source_masks", "reconstruct",
            "load_target", "relative_depth", "check_target", "is_3d_target", "check_part_seeds", "transfer",
-           "output_cameras",
-           "fit_view", "scene_compositor", "frames_outside", "frames_unseen", "render_frames", "render_video",
-           "write_ply_frames", "side_by_side", "write_side_by_side", "write_preview", "source_intrinsics",
-           "focal_setting", "DEFAULT_MAX_SIDE", "PLY_FRAME_NAME"]
+           "output_cameras", "fit_view", "scene_compositor", "frames_outside", "frames_unseen", "render_frames",
+           "render_video", "write_ply_frames", "side_by_side", "write_side_by_side", "write_preview",
+           "source_intrinsics", "focal_setting", "DEFAULT_MAX_SIDE", "PLY_FRAME_NAME"]
 
 
 def source_intrinsics(width: int, height: int, focal: float | None = None) -> np.ndarray:
@@ -265,7 +264,8 @@ def _read_target_image(path: Path, mask: str | Path | np.ndarray | None, depth: 
     object_pixels = mask if isinstance(mask, np.ndarray) else read_mask(mask)
     if object_pixels.shape != image.shape[:2]:
         h, w = object_pixels.shape
-        raise InputError(f"target mask {getattr(mask, 'name', 'given')} is {w}x{h} "
+        name = "found" if isinstance(mask, np.ndarray) else Path(mask).name
+        raise InputError(f"target mask {name} is {w}x{h} "
                          f"but the target image is {image.shape[1]}x{image.shape[0]}")
     return image, object_pixels, depth_map
 

@@ -200,9 +200,9 @@ _HINGE_MIN_TRACKS = 3
 HINGE_NOTE = "turned about the hinge"
 
 
-def _rigid_groups(seg) -> int:
-    """Moving parts of a segmentation, plus its static group when it holds first-frame pixels."""
-    return seg.num_parts + int((seg.pixel_labels == STATIC).any())
+def _rigid_groups(seg) -> list[int]:
+    """The labels of a segmentation's rigid groups: its moving parts, then STATIC when it holds first-frame pixels."""
+    return list(range(seg.num_parts)) + ([STATIC] if (seg.pixel_labels == STATIC).any() else [])
 
 
 def _fit_joints(parts: list[_Part], tracks: Tracks, track_labels: np.ndarray, masks: np.ndarray, k: np.ndarray,
@@ -418,12 +418,12 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
         with stages("parts", "finding parts", 1) as progress:
             whole_poses = whole_object_poses(chains, whole, options.rigid)
             seg = segment_parts(chains, masks[0], k, options.parts, whole=whole_poses)
-            if options.parts != "auto" and _rigid_groups(seg) > options.parts:  # a static part counts among them
+            if options.parts != "auto" and len(_rigid_groups(seg)) > options.parts:  # a static part counts too
                 seg = segment_parts(chains, masks[0], k, options.parts - 1, whole=whole_poses)
             progress(1, 1)
         chain_labels = _propagate_labels(chains, seg.track_labels, OUTLIER, radius=3.0 * options.spacing)
         pixel_labels = seg.pixel_labels
-        groups = list(range(seg.num_parts)) + ([STATIC] if (pixel_labels == STATIC).any() else [])
+        groups = _rigid_groups(seg)
         if options.parts != "auto" and len(groups) != options.parts:
             still = " and a static one" if STATIC in groups else ""
             raise InputError(f"{options.parts} parts were asked for, but the tracks show {seg.num_parts} moving "
