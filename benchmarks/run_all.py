@@ -50,6 +50,7 @@ BENCHES = (
     Bench("bench_table1.py", "table1.md", needs_data=True, quick=("--clips", "car-shadow")),
     Bench("bench_iterations.py", "iterations.md", needs_data=True, quick=("--iterations", "600")),
     Bench("bench_hard_clips.py", "hard_clips.md", needs_data=True, quick=("--clips", "drift-turn")),
+    Bench("bench_joint_fit.py", "joint_fit.md", quick=("--seeds", "1", "--extract-seeds", "1", "--size", "160x120")),
     Bench("bench_extract.py", "extract.md", quick=("--seeds", "1", "--frames", "24", "--size", "160x120",
                                                    "--large", "0")),
     Bench("bench_tracks.py", "tracks.md", quick=("--seeds", "1", "--frames", "24", "--size", "160x120",
@@ -97,7 +98,7 @@ HEADLINES = (
 GROUPS = (
     ("Quality against the paper", ("table1.md", "hard_clips.md", "iterations.md", "coarse_to_fine.md", "ssim_loss.md",
                                    "reconstruct.md", "align.md", "align_real.md")),
-    ("Motion extraction", ("extract.md", "tracks.md", "parts.md", "focal.md", "bundle.md", "recover.md",
+    ("Motion extraction", ("extract.md", "joint_fit.md", "tracks.md", "parts.md", "focal.md", "bundle.md", "recover.md",
                            "lid_information.md", "lid_relief.md", "extract_real.md", "foreground.md", "prompt.md",
                            "reproducibility_real.md")),
     ("The target, the transfer and the scene", ("lift.md", "mesh_target.md", "scene.md", "ablation.md",

@@ -30,7 +30,7 @@ or ``.ply``) and the jobs; every option has the name of the matching
     speed = 2.0
 
 Extraction options (``[defaults]``, ``[[source]]``): masks, depth, focal,
-parts, start, end, stride, max_side, smooth. Transfer options
+parts, start, end, stride, max_side, smooth, joint_fit. Transfer options
 (``[defaults]``, ``[[target]]``, ``[[job]]``; the later wins): frames, speed,
 loop, reverse, rotation_scale, translation_scale, fps, background (``[R, G,
 B]`` or ``"R,G,B"``, 0-1 or 0-255), size, camera, camera_amount,
@@ -153,6 +153,7 @@ EXTRACT_OPTIONS = {
     "start": (_integer(0, 10**7), 0),
     "end": (_integer(1, 10**7), None), "stride": (_integer(1, 10**4), 1),
     "max_side": (_integer(16, MAX_IMAGE_SIDE), pipeline.DEFAULT_MAX_SIDE), "smooth": (_number(0, 100), 1.0),
+    "joint_fit": (_flag, True),
 }
 #: Transfer and rendering options: checks and the defaults of ``marionette run``.
 TRANSFER_OPTIONS = {
@@ -428,7 +429,8 @@ def _extract_task(source: Source) -> tuple[SpatPrior, float, list[str]]:
     with _recorded_warnings() as messages:
         prior = pipeline.extract(source.path, masks=o["masks"], depth=o["depth"], focal=o["focal"],
                                  max_side=o["max_side"], start=o["start"], end=o["end"], stride=o["stride"],
-                                 options=ExtractOptions(parts=o["parts"], smoothing=o["smooth"]))
+                                 options=ExtractOptions(parts=o["parts"], smoothing=o["smooth"],
+                                                        joint_fit=o["joint_fit"]))
         write_prior(source.prior, prior)
     return prior, time.perf_counter() - start, messages
 

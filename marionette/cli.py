@@ -352,6 +352,10 @@ RecoverFrames = Annotated[bool, typer.Option(
     metavar="", help="Pose a frame the tracks lose by aligning the object's model.", rich_help_panel=MOTION)]
 Joints = Annotated[bool, typer.Option(
     metavar="", help="Fit a part turning about a fixed axis as a hinge (lid, door).", rich_help_panel=MOTION)]
+JointFit = Annotated[bool, typer.Option(
+    "--joint-fit/--no-joint-fit", metavar="",
+    help="Fit poses and object together to masks, pixels and tracks.",
+    rich_help_panel=MOTION)]
 StrictTracks = Annotated[Optional[bool], typer.Option(
     "--strict-tracks/--anchored-tracks", show_default="auto", metavar="",
     help="End a track where it stops matching, or align it again.", rich_help_panel=MOTION)]
@@ -388,7 +392,8 @@ def _check_max_side(max_side: int) -> None:
 
 def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, stride: int, max_side: int,
              max_pixels: int, smooth: float, plot, prompt: Prompt | None, save_masks: Path | None, session: _Session,
-             recover_frames: bool = True, joints: bool = True, strict_tracks: bool | None = None):
+             recover_frames: bool = True, joints: bool = True, strict_tracks: bool | None = None,
+             joint_fit: bool = True):
     """Shared by ``extract`` and ``run``: check the options, extract, draw the plot."""
     from . import pipeline
     from .plot import plot_prior
@@ -405,7 +410,7 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
         raise InputError(f"--smooth must be within 0..100, got {smooth}")
     _output_file(plot, ".png", "--plot")
     options = ExtractOptions(parts=parts_value, smoothing=smooth, recover_frames=recover_frames, joints=joints,
-                             strict_tracks="auto" if strict_tracks is None else strict_tracks)
+                             strict_tracks="auto" if strict_tracks is None else strict_tracks, joint_fit=joint_fit)
     prior = pipeline.extract(source, masks=masks, depth=depth, focal=focal, max_side=max_side,
                              max_pixels=max_pixels, start=start, end=end, stride=stride, options=options,
                              prompt=prompt, reporter=session.reporter,
@@ -453,14 +458,14 @@ def extract(source: Annotated[Path, typer.Argument(help="Video file or folder of
             max_pixels: MaxPixels = DEFAULT_MAX_PIXELS, smooth: Smooth = 1.0, plot: Plot = None,
             source_point: SourcePoint = None, source_box: SourceBox = None, source_exclude: SourceExclude = None,
             save_masks: SaveMasks = None, recover_frames: RecoverFrames = True, joints: Joints = True,
-            strict_tracks: StrictTracks = None,
+            strict_tracks: StrictTracks = None, joint_fit: JointFit = True,
             quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False, config: Config = None) -> None:
     """Extract the SpaT prior (per-part rigid motion) from a source video."""
     _output_file(output, ".npz", "--output")
     prompt = _prompt("source", source_point, source_box, source_exclude)
     with _session("extract", quiet, verbose, json_summary) as session:
         prior = _extract(source, masks, depth, focal, parts, start, end, stride, max_side, max_pixels, smooth, plot,
-                         prompt, save_masks, session, recover_frames, joints, strict_tracks)
+                         prompt, save_masks, session, recover_frames, joints, strict_tracks, joint_fit)
         write_prior(session.stage(output), prior)
         session.output("prior", output)
 
@@ -708,7 +713,7 @@ def run(source: Annotated[Path, typer.Argument(help="Video file or folder of fra
         max_pixels: MaxPixels = DEFAULT_MAX_PIXELS, smooth: Smooth = 1.0, plot: Plot = None,
         source_point: SourcePoint = None, source_box: SourceBox = None, source_exclude: SourceExclude = None,
         save_masks: SaveMasks = None, recover_frames: RecoverFrames = True, joints: Joints = True,
-        strict_tracks: StrictTracks = None, frames: Frames = None,
+        strict_tracks: StrictTracks = None, joint_fit: JointFit = True, frames: Frames = None,
         speed: Speed = 1.0, loop: Loop = "hold",
         reverse: Reverse = False,
         rotation_scale: RotationScale = 1.0, translation_scale: TranslationScale = 1.0, fps: Fps = None,
@@ -734,7 +739,7 @@ def run(source: Annotated[Path, typer.Argument(help="Video file or folder of fra
     _output_file(report, ".json", "--report")
     with _session("run", quiet, verbose, json_summary) as session:
         prior = _extract(source, masks, depth, focal, parts, start, end, stride, max_side, max_pixels, smooth, plot,
-                         prompt, save_masks, session, recover_frames, joints, strict_tracks)
+                         prompt, save_masks, session, recover_frames, joints, strict_tracks, joint_fit)
         trajectory, video = _transfer_and_render(prior, target, output, play, session)
         if side_by_side is not None:
             times = source_times(trajectory.num_frames, prior.num_frames - 1, speed=speed, loop=loop, reverse=reverse)
@@ -769,7 +774,7 @@ def reconstruct(source: Annotated[Path, typer.Argument(help="Video file or folde
                 max_side: Annotated[int, typer.Option(
                     help="Long side of the frames the fit works on.", rich_help_panel=PERFORMANCE)] = 960,
                 source_point: SourcePoint = None, source_box: SourceBox = None,
-                source_exclude: SourceExclude = None,
+                source_exclude: SourceExclude = None, joint_fit: JointFit = True,
                 quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False,
                 config: Config = None) -> None:
     """Reconstruct the source object as 3D Gaussians at frame 0, with each Gaussian's part."""
@@ -786,7 +791,7 @@ def reconstruct(source: Annotated[Path, typer.Argument(help="Video file or folde
     if masks is not None and not masks.is_dir():
         raise InputError(f"mask folder {masks} does not exist")
     options = ReconstructOptions(iterations=iterations, max_side=max_side)
-    extract_options = ExtractOptions(parts=checked("--parts", parse_parts, parts))
+    extract_options = ExtractOptions(parts=checked("--parts", parse_parts, parts), joint_fit=joint_fit)
     focal = checked("--focal", parse_focal, focal)
     prompt = _prompt("source", source_point, source_box, source_exclude)
     with _session("reconstruct", quiet, verbose, json_summary) as session:
@@ -831,7 +836,7 @@ def eval_self_cmd(source: Annotated[Path, typer.Argument(help="Video file or fol
                       help="Optimisation steps of the reconstruction (default 900).",
                       rich_help_panel=PERFORMANCE)] = None,
                   source_point: SourcePoint = None, source_box: SourceBox = None,
-                  source_exclude: SourceExclude = None, save_masks: SaveMasks = None,
+                  source_exclude: SourceExclude = None, save_masks: SaveMasks = None, joint_fit: JointFit = True,
                   quiet: Quiet = False, verbose: Verbose = False, json_summary: Json = False,
                   config: Config = None) -> None:
     """Self-transfer (the paper's Table 1): the source object as the target, scored against the masked source."""
@@ -848,7 +853,7 @@ def eval_self_cmd(source: Annotated[Path, typer.Argument(help="Video file or fol
     reconstruct_options = ReconstructOptions() if iterations is None else ReconstructOptions(iterations=iterations)
 
     _check_max_side(max_side)
-    options = replace(EVAL_EXTRACT, parts=checked("--parts", parse_parts, parts))
+    options = replace(EVAL_EXTRACT, parts=checked("--parts", parse_parts, parts), joint_fit=joint_fit)
     focal_value = checked("--focal", parse_focal, focal)
     if masks is not None and not masks.is_dir():
         raise InputError(f"mask folder {masks} does not exist")

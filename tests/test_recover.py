@@ -108,11 +108,12 @@ def test_a_mask_the_model_cannot_cover_leaves_the_frame_failed(scene):
 
 
 def _extract(frames, scene, recover: bool):
-    """The one-part prior of the frames, and the warnings extraction gave."""
+    """The one-part prior of the frames, and the warnings extraction gave (the tracks' poses: no joint fit)."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         prior = extract_prior(frames, scene.masks, scene.camera.K, fps=24.0,
-                              options=ExtractOptions(parts=1, camera_motion=False, recover_frames=recover))
+                              options=ExtractOptions(parts=1, camera_motion=False, recover_frames=recover,
+                                                     joint_fit=False))
     return prior, [str(w.message) for w in caught]
 
 

@@ -189,6 +189,7 @@ def eval_self(source: str | Path, masks: str | Path | None = None, output_dir: s
         "recovered_frames": len(prior.metadata.get("recovered_frames") or {}),
         "camera_motion": prior.metadata.get("camera_motion"),
         "focal_px": float(prior.intrinsics[0, 0]), "focal": prior.metadata.get("focal"),
+        "joint_fit": prior.metadata.get("joint_fit"), "extract_seconds": prior.metadata.get("timings"),
         **({} if fit is None else {"reconstruction_fit": fit}),
     }
     if fidelity:

@@ -32,12 +32,16 @@ class FitView:
         The frame in [0, 1] with everything off the object set to white.
     mask : (H, W) float32
         Object coverage in [0, 1].
+    frame_box : (4,) int or None
+        The whole frame ``x0, y0, x1, y1`` (exclusive ends) in the crop's pixels; None: the crop is the
+        frame. What projects inside the frame but outside the crop is off the object.
     """
 
     frame: int
     camera: Camera
     target: np.ndarray
     mask: np.ndarray
+    frame_box: tuple[int, int, int, int] | None = None
 
 
 def crop_box(mask: np.ndarray, margin: float = 0.1, pad: int = 4) -> tuple[int, int, int, int]:
@@ -69,6 +73,7 @@ def make_view(frame_index: int, image: np.ndarray, mask: np.ndarray, K: np.ndarr
         camera = camera.resized(sw, sh)
     else:
         cover = mask.astype(np.float32)
+    cover_full_h, cover_full_w = cover.shape
     x0, y0, x1, y1 = crop_box(cover > 0.5 if (cover > 0.5).any() else cover > 0)
     k = camera.K.copy()
     k[0, 2] -= x0
@@ -77,4 +82,5 @@ def make_view(frame_index: int, image: np.ndarray, mask: np.ndarray, K: np.ndarr
     rgb = image[y0:y1, x0:x1].astype(np.float32) / 255.0
     cover = np.ascontiguousarray(cover[y0:y1, x0:x1])
     target = rgb * cover[..., None] + (1.0 - cover[..., None])  # object composited onto white by its coverage
-    return FitView(frame_index, crop_cam, np.ascontiguousarray(target, dtype=np.float32), cover)
+    frame_box = (-x0, -y0, cover_full_w - x0, cover_full_h - y0)
+    return FitView(frame_index, crop_cam, np.ascontiguousarray(target, dtype=np.float32), cover, frame_box)

@@ -33,6 +33,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -64,6 +65,9 @@ from .shading import (
 )
 from .ssim import dssim_and_grad
 
+if TYPE_CHECKING:
+    from .joint import PoseFit
+
 __all__ = ["ReconstructOptions", "Reconstruction", "reconstruct_object"]
 
 #: Frames the reported initial and final losses are averaged over: enough to follow the fit, at a fraction of a
@@ -89,6 +93,10 @@ class ReconstructOptions:
         Long side of the frames the fit works on, before cropping (intrinsics follow). The
         default is the size frames are read at, so a 480p clip is fitted at its own resolution:
         a fit at 480 px cannot hold the texture of an 854 px frame.
+    object_side : int or None
+        Instead of ``max_side``: each frame scaled so that its object's box spans about this many pixels
+        (never above the frame's own resolution), so a car far off and the same car close by weigh alike
+        and cost alike.
     init_frames : int
         Frames whose silhouette lifts start the fit (spread over the fitting frames).
     init_cells : int
@@ -128,6 +136,14 @@ class ReconstructOptions:
         the shading changes as the object's faces turn towards or away from the light.
     lr_normals, lr_light, lr_diffuse : float
         Adam steps of the normals, the light direction and the diffuse share's logit.
+    outside_weight : float
+        Weight of the silhouette term carried past the crop: a Gaussian whose centre projects inside the
+        frame but outside the view's crop (off the object) has its opacity pulled down as if its footprint
+        were drawn on the mask's zeros (at ``mask_weight`` times this). Without it a Gaussian outside every
+        crop costs nothing and shows as a floater in the full frame.
+    max_scale : float
+        Largest standard deviation a Gaussian may keep, in object radii (``inf``: any): larger ones are pulled
+        back by a quadratic penalty on the log-scale's excess, so a few wide blurs cannot cover a pose's error.
     seed : int
         Seeds the frame order and the samples of splits and subsampling.
     """
@@ -135,6 +151,7 @@ class ReconstructOptions:
     iterations: int = 900
     coarse_fraction: float = 2 / 3
     max_side: int = 960
+    object_side: int | None = None
     init_frames: int = 4
     init_cells: int = 2500
     max_gaussians: int = 12000
@@ -155,6 +172,8 @@ class ReconstructOptions:
     lr_normals: float = 0.01
     lr_light: float = 0.01
     lr_diffuse: float = 0.05
+    outside_weight: float = 1.0
+    max_scale: float = np.inf
     seed: int = 0
 
     @property
@@ -169,6 +188,8 @@ class ReconstructOptions:
             raise InputError(f"iterations must be an integer in 1..1000000, got {self.iterations!r}")
         if not 16 <= self.max_side <= 8192:
             raise InputError(f"max_side must be within 16..8192, got {self.max_side}")
+        if self.object_side is not None and not 16 <= self.object_side <= 8192:
+            raise InputError(f"object_side must be within 16..8192, got {self.object_side}")
         if self.init_frames < 1 or self.init_cells < 16 or self.max_gaussians < 16:
             raise InputError("init_frames must be >= 1, init_cells and max_gaussians >= 16")
         if not 0 <= self.coarse_fraction < 1:
@@ -177,6 +198,8 @@ class ReconstructOptions:
             raise InputError(f"ssim_weight must be within 0..1, got {self.ssim_weight}")
         if not self.gaussians_per_pixel > 0:
             raise InputError(f"gaussians_per_pixel must be > 0, got {self.gaussians_per_pixel}")
+        if not self.outside_weight >= 0 or not self.max_scale > 0:
+            raise InputError("outside_weight must be >= 0 and max_scale > 0")
 
 
 @dataclass(frozen=True)
@@ -260,6 +283,12 @@ def _check_inputs(frames, masks, prior: SpatPrior, frames_used: Sequence[int] | 
     return sorted(used)
 
 
+def _box_side(mask: np.ndarray) -> int:
+    """Long side in pixels of the box around the mask's (H, W) bool pixels (not empty)."""
+    ys, xs = np.nonzero(mask)
+    return int(max(xs.max() - xs.min(), ys.max() - ys.min())) + 1
+
+
 def gaussian_budget(views: Sequence[FitView], options: ReconstructOptions) -> int:
     """How many Gaussians the fit may hold: ``max_gaussians``, or fewer for an object of few pixels."""
     area = float(np.median([view.mask.sum() for view in views]))
@@ -338,19 +367,63 @@ def _view_loss(params: dict, parts: np.ndarray, view: FitView, poses: np.ndarray
     return _image_loss(out.image, out.alpha, view, mask_weight, ssim_weight)[0]
 
 
+def _outside(params: dict, posed_means: np.ndarray, view: FitView, weight: float) -> tuple[float, np.ndarray]:
+    """The silhouette term past the crop: loss and its gradient (N,) with respect to the opacity logits.
+
+    A Gaussian whose centre (posed_means (N, 3), camera frame) projects inside the frame but outside the crop
+    would draw about ``o² π σ²`` of squared alpha onto the mask's zeros there (``σ`` its largest standard
+    deviation in pixels), counted as the crop's own pixels are: ``weight · Σ o² π σ² / (H W)``.
+    """
+    grad = np.zeros(len(posed_means))
+    if view.frame_box is None or weight == 0 or not len(posed_means):
+        return 0.0, grad
+    cam = view.camera
+    z = posed_means[:, 2]
+    front = z > 1e-6
+    zs = np.where(front, z, 1.0)
+    u = cam.K[0, 0] * posed_means[:, 0] / zs + cam.K[0, 2]
+    v = cam.K[1, 1] * posed_means[:, 1] / zs + cam.K[1, 2]
+    x0, y0, x1, y1 = view.frame_box
+    off = front & (u >= x0) & (u < x1) & (v >= y0) & (v < y1) & ~((u >= 0) & (u < cam.width) & (v >= 0)
+                                                                  & (v < cam.height))
+    if not off.any():
+        return 0.0, grad
+    o = 1 / (1 + np.exp(-params["logits"][off].astype(np.float64)))
+    sigma = np.maximum(cam.K[0, 0] * np.exp(params["log_scales"][off].max(axis=1).astype(np.float64)) / zs[off], 0.5)
+    area = np.pi * sigma ** 2 * (weight / (cam.width * cam.height))
+    grad[off] = 2 * o * o * (1 - o) * area
+    return float(np.sum(o * o * area)), grad
+
+
+def _scale_excess(log_scales: np.ndarray, cap: float, weight: float) -> np.ndarray:
+    """(N, 3) gradient of ``weight · mean_n max(0, log s_n - log cap)²`` over the Gaussians' largest log-scale."""
+    grad = np.zeros(log_scales.shape)
+    if not np.isfinite(cap) or not len(log_scales):
+        return grad
+    largest = np.argmax(log_scales, axis=1)
+    excess = np.maximum(log_scales[np.arange(len(log_scales)), largest] - np.log(cap), 0.0)
+    grad[np.arange(len(log_scales)), largest] = 2 * weight * excess / len(log_scales)
+    return grad
+
+
 def _loss_and_grads(params: dict, parts: np.ndarray, view: FitView, poses: np.ndarray, q_pose: np.ndarray,
-                    mask_weight: float, light: dict | None = None,
-                    ssim_weight: float = 0.0) -> tuple[float, dict, np.ndarray]:
+                    mask_weight: float, light: dict | None = None, ssim_weight: float = 0.0, *,
+                    outside_weight: float = 0.0, pivots: np.ndarray | None = None) -> tuple[float, dict, np.ndarray]:
     """Loss of one view, gradients per parameter, and each Gaussian's screen-space gradient norm (N,).
 
     With ``light`` (see :func:`_lighting`) the colours are shaded and the gradients include
-    ``normals`` and, under ``light``, ``direction`` and ``diffuse``.
+    ``normals`` and, under ``light``, ``direction`` and ``diffuse``. ``outside_weight``: the silhouette term
+    past the crop (:func:`_outside`), at ``mask_weight`` times it. With ``pivots`` (K, 3), also ``pose``
+    (K, 6): the gradient with respect to a left-multiplied twist ``[ω, v]`` of each part about its pivot.
     """
     posed, (rot, left, posed_means, turned_sh, lighting, normals, factors) = _posed(params, parts, poses, q_pose,
                                                                                     light)
     out = render_with_grad(posed, view.camera, (1.0, 1.0, 1.0))
     loss, d_image, d_alpha = _image_loss(out.output.image, out.output.alpha, view, mask_weight, ssim_weight)
-    grads = out.backward(d_image, d_alpha)
+    groups = None if pivots is None else [parts == k for k in range(len(poses))]
+    grads = out.backward(d_image, d_alpha, groups=groups, pivot=pivots)
+    outside_loss, g_outside = _outside(params, posed_means, view, mask_weight * outside_weight)
+    loss += outside_loss
     g_means = per_part(grads.means, parts, rot, transpose=True)  # Rᵀ ∂L/∂μ'
     g_quats = per_part(grads.quats, parts, left, transpose=True)  # Lᵀ ∂L/∂q'
     depth = np.maximum(posed_means[:, 2], 1e-6)
@@ -360,7 +433,7 @@ def _loss_and_grads(params: dict, parts: np.ndarray, view: FitView, poses: np.nd
         g_sh, g_factors = shade_backward(turned_sh, factors, g_sh)
         g_normals, g_direction, g_diffuse = factor_backward(normals, lighting, g_factors)
     result = {"means": g_means, "quats": g_quats, "log_scales": grads.log_scales.astype(np.float64),
-              "logits": grads.opacity_logits.astype(np.float64),
+              "logits": grads.opacity_logits.astype(np.float64) + g_outside,
               "dc": g_sh[:, 0].astype(np.float64),
               # The SH turn is orthogonal: its transpose, the gradient's, is the inverse turn's.
               "rest": rotate_sh(g_sh, np.swapaxes(poses[:, :3, :3], 1, 2), parts)[:, 1:].astype(np.float64)}
@@ -368,6 +441,8 @@ def _loss_and_grads(params: dict, parts: np.ndarray, view: FitView, poses: np.nd
         result["normals"] = tangent(per_part(g_normals, parts, rot, transpose=True), params["normals"])
         result["direction"] = tangent(g_direction, light["direction"][0])[None]
         result["diffuse"] = np.array([g_diffuse * lighting.diffuse * (1 - lighting.diffuse)])
+    if pivots is not None:
+        result["pose"] = grads.pose
     return loss, result, screen
 
 
@@ -414,7 +489,7 @@ def _densify(params: dict, parts: np.ndarray, adam: Adam, score: np.ndarray, opt
 
 def reconstruct_object(frames, masks, prior: SpatPrior, *, frames_used: Sequence[int] | None = None,
                        options: ReconstructOptions = ReconstructOptions(),
-                       progress: ProgressCallback | None = None) -> Reconstruction:
+                       progress: ProgressCallback | None = None, pose_fit: PoseFit | None = None) -> Reconstruction:
     """Fit the source object as 3D Gaussians at frame 0 to the frames it is seen in.
 
     Parameters
@@ -431,6 +506,9 @@ def reconstruct_object(frames, masks, prior: SpatPrior, *, frames_used: Sequence
     options : ReconstructOptions
     progress : callable ``(done, total)``, optional
         Called after every iteration.
+    pose_fit : PoseFit, optional
+        Fit the poses too (:mod:`.joint`): after every step, the frame's poses take a step of their own from
+        the same backward pass. Its poses (as filmed) replace the prior's throughout.
 
     Returns
     -------
@@ -455,6 +533,8 @@ def reconstruct_object(frames, masks, prior: SpatPrior, *, frames_used: Sequence
     views, coarse = [], []
     for t in visible:  # each frame read once (a video decodes it again on every read)
         image, mask = np.asarray(frames[t]), np.asarray(masks[t], bool)
+        if options.object_side is not None:
+            scale = min(1.0, options.object_side / _box_side(mask))
         views.append(make_view(t, image, mask, prior.intrinsics, scale))
         if coarse_steps:
             coarse.append(make_view(t, image, mask, prior.intrinsics, scale / 2))
@@ -474,8 +554,9 @@ def reconstruct_object(frames, masks, prior: SpatPrior, *, frames_used: Sequence
         # Start from a faint light from the camera: colours as observed, gradients for every term.
         light = {"direction": np.array([[0.0, 0.0, -1.0]]), "diffuse": np.array([np.log(0.1 / 0.9)])}
         light_adam = Adam(light)
-    poses = {t: prior.poses[:, t] for t in visible}
-    q_pose = {t: matrix_to_quaternion(prior.poses[:, t, :3, :3]) for t in visible}
+    start_poses = prior.poses if pose_fit is None else pose_fit.poses
+    poses = {t: start_poses[:, t] for t in visible}
+    q_pose = {t: matrix_to_quaternion(start_poses[:, t, :3, :3]) for t in visible}
     adam = Adam(params)
 
     scored = [views[i] for i in np.unique(np.linspace(0, len(views) - 1, min(LOSS_FRAMES, len(views))).astype(int))]
@@ -494,18 +575,27 @@ def reconstruct_object(frames, masks, prior: SpatPrior, *, frames_used: Sequence
     for it in range(total):
         if not order:
             order = list(rng.permutation(len(views)))
+            if pose_fit is not None and it:
+                pose_fit.epoch_done()
         view = (coarse if it < coarse_steps else views)[order.pop()]
         loss, grads, screen = _loss_and_grads(params, parts, view, poses[view.frame], q_pose[view.frame],
-                                              options.mask_weight, light, options.ssim_weight)
+                                              options.mask_weight, light, options.ssim_weight,
+                                              outside_weight=options.outside_weight,
+                                              pivots=None if pose_fit is None else pose_fit.pivots(view.frame))
+        grads["log_scales"] += _scale_excess(params["log_scales"], options.max_scale * radius, options.mask_weight)
         block.append(loss)
         decay = 0.1 ** (it / max(total - 1, 1))
         lrs = {"means": options.lr_means * radius * decay, "quats": options.lr_quats,
                "log_scales": options.lr_log_scales, "logits": options.lr_opacity, "dc": options.lr_colour,
                "rest": options.lr_colour / 20, "normals": options.lr_normals}
-        adam.update(params, {k: grads[k] for k in params}, lrs)
+        weight = 1.0 if pose_fit is None else pose_fit.frame_weight(view.frame, loss)
+        adam.update(params, {k: grads[k] * weight for k in params}, lrs)
         if light is not None:
             light_adam.update(light, {k: grads[k] for k in light},
                               {"direction": options.lr_light, "diffuse": options.lr_diffuse})
+        if pose_fit is not None:
+            poses[view.frame] = pose_fit.step(view.frame, grads["pose"], it, total)
+            q_pose[view.frame] = matrix_to_quaternion(poses[view.frame][:, :3, :3])
         accum += screen
         seen += screen > 0
         if (it + 1) % options.densify_every == 0:
@@ -535,6 +625,8 @@ def reconstruct_object(frames, masks, prior: SpatPrior, *, frames_used: Sequence
                                                                      albedo))
     result.check_finite()
     reconstruction = Reconstruction(result, parts.astype(np.int32), losses, visible, shading)
+    if pose_fit is not None:
+        prior = pose_fit.fitted_prior(prior)
     reconstruction = replace(reconstruction, quality=fit_quality(reconstruction, frames, masks, prior, visible))
     if reconstruction.quality.poor:
         q = reconstruction.quality.summary()

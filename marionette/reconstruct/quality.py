@@ -18,7 +18,7 @@ import numpy as np
 
 from ..prior import SpatPrior
 
-__all__ = ["FitQuality", "fit_quality", "POOR_IOU"]
+__all__ = ["FitQuality", "fit_quality", "frame_iou", "POOR_IOU"]
 
 #: A fit whose median silhouette IoU over its frames is below this does not explain them as one rigid object.
 POOR_IOU = 0.85
@@ -71,8 +71,18 @@ def fit_quality(reconstruction, frames, masks, prior: SpatPrior, frames_fitted) 
     for t in scored:
         out = reconstruction.render_filmed(filmed, t)
         mask = np.asarray(masks[t], bool)
-        silhouette = out.alpha >= 0.5
-        union = (silhouette | mask).sum()
-        ious.append(float((silhouette & mask).sum() / union) if union else 1.0)
+        ious.append(_iou(out.alpha, mask))
         psnrs.append(masked_psnr(np.clip(out.image, 0, 1), np.asarray(frames[t]), mask))
     return FitQuality(np.array(scored), np.array(ious), np.array(psnrs))
+
+
+def _iou(alpha: np.ndarray, mask: np.ndarray) -> float:
+    """IoU of the silhouette ``alpha >= 0.5`` (H, W) with the mask (H, W) bool (1 when both are empty)."""
+    silhouette = alpha >= 0.5
+    union = (silhouette | mask).sum()
+    return float((silhouette & mask).sum() / union) if union else 1.0
+
+
+def frame_iou(reconstruction, prior: SpatPrior, mask: np.ndarray, t: int) -> float:
+    """Silhouette IoU of the reconstruction at frame ``t`` of ``prior`` (as filmed) against mask (H, W)."""
+    return _iou(reconstruction.render_filmed(prior, t).alpha, np.asarray(mask, bool))

@@ -19,7 +19,10 @@ transforms (Eq. 3-5). We do the same per rigid part, in this order:
    1 unit fixes the monocular scale for all parts alike;
 6. :func:`~marionette.source.smoothing.smooth_poses`: SE(3) temporal smoothing;
 7. each part's centre (the prior volume carved by the silhouettes) moved by
-   its poses, and :meth:`~marionette.prior.SpatPrior.from_poses`.
+   its poses, and :meth:`~marionette.prior.SpatPrior.from_poses`;
+8. :func:`~marionette.reconstruct.joint.joint_fit`: every pose fitted again
+   together with a model of the object, to the silhouettes, pixels and tracks,
+   so a frame the tracks lost is placed by the fit; smoothed again.
 """
 
 from __future__ import annotations
@@ -39,6 +42,8 @@ from ..geometry import invert_transform, rotation_angle_deg
 from ..io.video import PackedMasks, VideoFrames
 from ..prior import CAMERA_EXTRA, SpatPrior
 from ..progress import ProgressCallback, Reporter
+from ..reconstruct.joint import JointOptions, joint_fit
+from ..reconstruct.quality import frame_iou
 from .camera_motion import estimate_camera_motion, to_world
 from .depth import DepthMaps, poses_from_depth
 from .focal import FOCAL_SCALES, estimate_focal
@@ -112,8 +117,14 @@ class ExtractOptions:
         motionless and the identity prior returned (with a warning). Not the
         median: a lid or a door is often less than half of the object, and
         the body it hinges on stays still.
+    joint_fit : bool
+        Fit the poses again together with the object's Gaussians, to the masks, the frames and the tracks
+        (:mod:`~marionette.reconstruct.joint`): poses hold where tracks fail, and a frame they lost is placed
+        by the fit. One-part motion, without depth maps.
     rigid : RigidOptions
         Pose estimation settings.
+    joint : JointOptions
+        Joint fit settings.
     """
 
     spacing: int = 6
@@ -131,7 +142,9 @@ class ExtractOptions:
     strict_tracks: bool | str = "auto"
     relief: float = 1.0
     motion_threshold: float = 0.5
+    joint_fit: bool = True
     rigid: RigidOptions = field(default_factory=RigidOptions)
+    joint: JointOptions = field(default_factory=JointOptions)
 
 
 @dataclass
@@ -253,6 +266,10 @@ def whole_object_poses(tracks: Tracks, shape: ShapePrior, options: RigidOptions 
     poses = fit_rigid(tracks, shape, options=options).poses
     poses[:, :3, 3] /= shape.centroid[2]
     return poses
+
+
+#: A failed frame whose jointly fitted silhouette matches its mask at least this well was placed by the fit.
+PLACED_IOU = 0.8
 
 
 def _check_inputs(camera_K, fps, depths, shape: tuple[int, int, int]) -> np.ndarray:
@@ -496,15 +513,57 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
     extras.update(labels=labels, track_labels=track_parts)
 
     failed = {f"{index}:{t}": reason for index, part in enumerate(parts) for t, reason in part.failed.items()}
+    recovered = {f"{index}:{t}": note for index, part in enumerate(parts) for t, note in part.recovered.items()}
+    metadata.update(failed_frames=failed, recovered_frames=recovered, no_motion=False,
+                    motion_px=float(motion) if np.isfinite(motion) else None, num_parts=len(parts),
+                    reprojection_rms_px=float(np.mean(rms)) if rms else None)
+    prior = SpatPrior.from_poses(poses, centroids, np.array([p.radius for p in parts]), extras=extras,
+                                 metadata=metadata, **common)
+    if options.joint_fit and depths is None:
+        prior = _fit_jointly(prior, frames, masks, options, stages, centres)
+    failed = prior.metadata["failed_frames"]
     if failed:
         listed = ", ".join(list(failed)[:10])
         more = "…" if len(failed) > 10 else ""
         warnings.warn(f"pose estimation failed at {len(failed)} part-frames ({listed}{more}); "
                       "their poses are interpolated (see metadata 'failed_frames')", stacklevel=2)
     stages.timings["total"] = time.perf_counter() - start
-    recovered = {f"{index}:{t}": note for index, part in enumerate(parts) for t, note in part.recovered.items()}
-    metadata.update(failed_frames=failed, recovered_frames=recovered, no_motion=False,
-                    motion_px=float(motion) if np.isfinite(motion) else None, num_parts=len(parts),
-                    reprojection_rms_px=float(np.mean(rms)) if rms else None)
-    return SpatPrior.from_poses(poses, centroids, np.array([p.radius for p in parts]), extras=extras,
-                                metadata=metadata, **common)
+    return prior
+
+
+def _fit_jointly(prior: SpatPrior, frames, masks, options: ExtractOptions, stages: _Stages,
+                 centres: np.ndarray) -> SpatPrior:
+    """The prior with its poses fitted again together with the object (:func:`joint_fit`), smoothed as before.
+
+    A failed (interpolated) part-frame whose fitted silhouette then matches its mask (IoU >= :data:`PLACED_IOU`)
+    is listed as recovered, "placed by the joint fit"; the others stay failed. Metadata ``joint_fit``: the
+    time, the Gaussians' count, the fit's silhouette IoU and how far the poses turned.
+    """
+    metadata = dict(prior.metadata)
+    if prior.num_parts > 1:  # a part's pixels in a frame are not known: one mask for all (issue 52)
+        metadata["joint_fit"] = {"skipped": "several parts: the joint fit is for one-part motion so far"}
+        return dataclasses.replace(prior, metadata=metadata)
+    with stages("joint", "fitting poses and object together") as progress:
+        fit = joint_fit(frames, masks, prior, options=options.joint, progress=progress)
+        poses = fit.prior.poses
+        if options.smoothing > 0:
+            poses = smooth_poses(poses, options.smoothing, centers=centres)
+        refined = SpatPrior.from_poses(poses, np.einsum("ktij,kj->kti", poses[..., :3, :3], centres)
+                                       + poses[..., :3, 3], prior.radii, fps=prior.fps,
+                                       image_size=tuple(prior.image_size), intrinsics=prior.intrinsics,
+                                       extras=prior.extras)
+        failed, recovered = dict(metadata["failed_frames"]), dict(metadata["recovered_frames"])
+        filmed = refined.motion_in("filmed")
+        for key in list(failed):
+            t = int(key.split(":")[1])
+            iou = frame_iou(fit.reconstruction, filmed, masks[t], t)
+            if iou >= PLACED_IOU:
+                recovered[key] = f"placed by the joint fit (silhouette IoU {iou:.2f}); tracks: {failed.pop(key)}"
+    quality = fit.reconstruction.quality.summary()
+    metadata.update(failed_frames=failed, recovered_frames=dict(sorted(recovered.items())),
+                    joint_fit={"seconds": round(fit.seconds, 2), "gaussians": len(fit.reconstruction.parts),
+                               "silhouette_iou": quality["silhouette_iou"],
+                               "silhouette_iou_worst": quality["silhouette_iou_worst"],
+                               "turn_deg_median": round(float(np.median(fit.change_deg)), 3),
+                               "turn_deg_max": round(float(np.max(fit.change_deg)), 3)})
+    return dataclasses.replace(refined, metadata=metadata)

@@ -19,6 +19,7 @@ from ._scene import (
     object_view,
     render_object_image,
 )
+from .perturb import perturbed_prior
 
 __all__ = ["CAMERA_MOTIONS", "MOTIONS", "OBJECTS", "TARGET_OBJECTS", "SyntheticScene", "make_scene",
-           "object_view", "render_object_image"]
+           "object_view", "perturbed_prior", "render_object_image"]
