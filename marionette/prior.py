@@ -137,6 +137,13 @@ class SpatPrior:
             radii=radii, extras=dict(extras or {}), metadata=dict(metadata or {}),
         )
 
+    def with_poses(self, poses: np.ndarray, centres: np.ndarray) -> "SpatPrior":
+        """This prior (rate, size, intrinsics, extras, metadata) with other poses (K, T, 4, 4), its centroids
+        those of each part's frame-0 centre (K, 3) moved by them."""
+        centroids = np.einsum("ktij,kj->kti", poses[..., :3, :3], centres) + poses[..., :3, 3]
+        return SpatPrior.from_poses(poses, centroids, self.radii, fps=self.fps, image_size=tuple(self.image_size),
+                                    intrinsics=self.intrinsics, extras=self.extras, metadata=self.metadata)
+
     @staticmethod
     def identity(num_frames: int, *, fps: float, image_size: tuple[int, int], intrinsics: np.ndarray,
                  centroid: np.ndarray, radius: float, metadata: dict | None = None) -> "SpatPrior":

@@ -332,10 +332,7 @@ class PoseFit:
 
     def fitted_prior(self, prior: SpatPrior) -> SpatPrior:
         """``prior`` (as filmed) with the fitted poses."""
-        centroids = np.einsum("ktij,kj->kti", self.poses[..., :3, :3], self.centres) + self.poses[..., :3, 3]
-        return SpatPrior.from_poses(self.poses, centroids, prior.radii, fps=prior.fps,
-                                    image_size=tuple(prior.image_size), intrinsics=prior.intrinsics,
-                                    extras=prior.extras, metadata=prior.metadata)
+        return prior.with_poses(self.poses, self.centres)
 
     def epoch_done(self) -> None:
         """After a pass over the frames: the tracks' points follow the poses."""
@@ -420,9 +417,7 @@ def joint_fit(frames, masks, prior: SpatPrior, *, options: JointOptions = JointO
     fitted = pose_fit.poses
     cameras = prior.extras.get(CAMERA_EXTRA)
     world = fitted if cameras is None else invert_transform(np.asarray(cameras, np.float64))[None] @ fitted
-    centroids = np.einsum("ktij,kj->kti", world[..., :3, :3], centres) + world[..., :3, 3]
-    refined = SpatPrior.from_poses(world, centroids, prior.radii, fps=prior.fps, image_size=tuple(prior.image_size),
-                                   intrinsics=prior.intrinsics, extras=prior.extras, metadata=prior.metadata)
+    refined = prior.with_poses(world, centres)
     change = rotation_angle_deg(fitted[..., :3, :3] @ np.swapaxes(filmed.poses[..., :3, :3], -1, -2))
     return JointFit(refined, reconstruction, change, time.perf_counter() - start)
 

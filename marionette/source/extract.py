@@ -548,10 +548,7 @@ def _fit_jointly(prior: SpatPrior, frames, masks, options: ExtractOptions, stage
         poses = fit.prior.poses
         if options.smoothing > 0:
             poses = smooth_poses(poses, options.smoothing, centers=centres)
-        refined = SpatPrior.from_poses(poses, np.einsum("ktij,kj->kti", poses[..., :3, :3], centres)
-                                       + poses[..., :3, 3], prior.radii, fps=prior.fps,
-                                       image_size=tuple(prior.image_size), intrinsics=prior.intrinsics,
-                                       extras=prior.extras)
+        refined = prior.with_poses(poses, centres)
         failed, recovered = dict(metadata["failed_frames"]), dict(metadata["recovered_frames"])
         filmed = refined.motion_in("filmed")
         for key in list(failed):
