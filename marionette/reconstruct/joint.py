@@ -19,7 +19,7 @@ solved under the current poses (linear triangulation, once per pass over the
 frames), ``a`` the second difference of the frame-to-frame rotations, ``b``
 that of the part's centre (``r`` its radius) and ``ξ`` the twist from the
 starting pose. Frame 0 defines the model's frame and stays: freed, a far, small object there (a car
-coming from the distance) moved every other frame's motion with it, by 17° on drift-chicane.
+coming from the distance) turned every other frame's motion with it (docs/benchmarks/hard_clips.md).
 
 A single rigid model must explain every frame: a frame whose loss stands out
 bends the Gaussians less (its step on them is weighted down), the Gaussians'
