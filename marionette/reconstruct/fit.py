@@ -360,6 +360,22 @@ def _image_loss(image: np.ndarray, alpha: np.ndarray, view: FitView, mask_weight
     return loss, d_image.astype(np.float32), (2 * mask_weight / npx) * a_res
 
 
+def _poses_epoch(pose_fit: PoseFit, params: dict, parts: np.ndarray, views: Sequence[FitView], poses: dict,
+                 q_pose: dict, light: dict | None, options: ReconstructOptions, it: int) -> None:
+    """The joint fit's end of a pass over the frames (:meth:`~.joint.PoseFit.epoch_done`), the fit's poses
+    (``poses``, ``q_pose``: frame → (K, 4, 4), (K, 4)) updated from it."""
+    by_frame = {view.frame: view for view in views}
+
+    def frame_loss(t: int, pose: np.ndarray) -> float:
+        return _view_loss(params, parts, by_frame[t], pose, matrix_to_quaternion(pose[:, :3, :3]),
+                          options.mask_weight, light, options.ssim_weight)
+
+    pose_fit.epoch_done(frame_loss, it, options.iterations)
+    for t in by_frame:
+        poses[t] = pose_fit.poses[:, t]
+        q_pose[t] = matrix_to_quaternion(poses[t][:, :3, :3])
+
+
 def _view_loss(params: dict, parts: np.ndarray, view: FitView, poses: np.ndarray, q_pose: np.ndarray,
                mask_weight: float, light: dict | None, ssim_weight: float) -> float:
     """Loss of one view (a forward render only)."""
@@ -576,7 +592,8 @@ def reconstruct_object(frames, masks, prior: SpatPrior, *, frames_used: Sequence
         if not order:
             order = list(rng.permutation(len(views)))
             if pose_fit is not None and it:
-                pose_fit.epoch_done()
+                _poses_epoch(pose_fit, params, parts, coarse if it < coarse_steps else views, poses, q_pose, light,
+                             options, it)
         view = (coarse if it < coarse_steps else views)[order.pop()]
         loss, grads, screen = _loss_and_grads(params, parts, view, poses[view.frame], q_pose[view.frame],
                                               options.mask_weight, light, options.ssim_weight,
@@ -626,6 +643,7 @@ def reconstruct_object(frames, masks, prior: SpatPrior, *, frames_used: Sequence
     result.check_finite()
     reconstruction = Reconstruction(result, parts.astype(np.int32), losses, visible, shading)
     if pose_fit is not None:
+        reconstruction = pose_fit.rebase(reconstruction)
         prior = pose_fit.fitted_prior(prior)
     reconstruction = replace(reconstruction, quality=fit_quality(reconstruction, frames, masks, prior, visible))
     if reconstruction.quality.poor:

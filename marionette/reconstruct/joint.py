@@ -18,8 +18,13 @@ with ``ρ(x; s) = s² log(1 + |x|²/s²)`` (Cauchy), ``X_j`` each track's point
 solved under the current poses (linear triangulation, once per pass over the
 frames), ``a`` the second difference of the frame-to-frame rotations, ``b``
 that of the part's centre (``r`` its radius) and ``ξ`` the twist from the
-starting pose. Frame 0 defines the model's frame and stays: freed, a far, small object there (a car
-coming from the distance) turned every other frame's motion with it (docs/benchmarks/hard_clips.md).
+starting pose. Frame 0 defines the model's frame: it keeps its turn (freed, that drifts with every other
+frame's error) and only its place is fitted (a far car's depth).
+
+Tracks that slip by tens of degrees leave a frame beyond what its gradient can climb back. After each pass, a
+frame whose loss is several times the median tries its neighbours' poses and keeps the one that renders it
+best; frame 0 too, which is then fitted like the rest. The result is re-expressed so that frame 0's pose is
+the identity again (the motion is relative to it).
 
 A single rigid model must explain every frame: a frame whose loss stands out
 bends the Gaussians less (its step on them is weighted down), the Gaussians'
@@ -32,7 +37,8 @@ shading's own dependence on the pose is left out of the pose gradient (as in
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Callable
 
 import numpy as np
 
@@ -41,7 +47,13 @@ from ..geometry import (axis_angle_to_matrix, invert_transform, matrix_to_axis_a
                         so3_left_jacobian)
 from ..prior import CAMERA_EXTRA, SpatPrior
 from ..progress import ProgressCallback
+from ..render.sh import rotate_sh
+from ._init import pose_gaussians
 from .fit import Reconstruction, ReconstructOptions, reconstruct_object
+from .posing import per_part
+
+#: A frame whose loss is over this many times the median is an outlier: it tries its neighbours' poses.
+OUTLIER_LOSS = 3.0
 
 __all__ = ["JointOptions", "JointFit", "PoseFit", "TrackObservations", "joint_fit", "triangulate_tracks"]
 
@@ -207,6 +219,7 @@ class PoseFit:
         self.m = np.zeros((t_count, k_count, 6))
         self.v = np.zeros((t_count, k_count, 6))
         self.steps = np.zeros(t_count, int)
+        self.free = np.arange(t_count) > 0  # frames whose turn is fitted: frame 0's once it took a neighbour's
         self.losses = np.full(t_count, np.nan)
         self.points: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # per part: track ids, points, ok
         if tracks is not None and options.track_weight > 0:
@@ -310,12 +323,14 @@ class PoseFit:
     def step(self, t: int, image_gradient: np.ndarray, it: int, total: int) -> np.ndarray:
         """One Adam step of frame ``t``'s poses given its image loss's twist gradient (K, 6); its poses (K, 4, 4)."""
         first = int(self.options.warmup * total)
-        if it < first or t == 0:  # frame 0 defines the model's frame
+        if it < first:
             return self.poses[:, t]
         it, total = it - first, total - first
         o = self.options
         g = np.asarray(image_gradient, np.float64) + self.prior_gradient(t) + self.track_gradient(t)
         g[:, 3:] *= self.radius  # per object radius, as the step is
+        if not self.free[t]:
+            g[:, :3] = 0.0
         self.steps[t] += 1
         n = self.steps[t]
         self.m[t] = 0.9 * self.m[t] + 0.1 * g
@@ -330,14 +345,58 @@ class PoseFit:
         self.poses[:, t, :3, 3] = np.einsum("kij,kj->ki", rot, self.poses[:, t, :3, 3] - pivots) + pivots + shift
         return self.poses[:, t]
 
+    def rebase(self, reconstruction: Reconstruction) -> Reconstruction:
+        """Frame 0's poses made the identity again (every frame's pose is fitted, frame 0's too): the poses become
+        ``P_t P_0⁻¹`` and the centres move by ``P_0``, as do the returned Gaussians; every frame renders as before."""
+        first = self.poses[:, 0].copy()
+        self.poses = self.poses @ invert_transform(first)[:, None]
+        self.centres = np.einsum("kij,kj->ki", first[:, :3, :3], self.centres) + first[:, :3, 3]
+        parts, shading = reconstruction.parts, reconstruction.shading
+        if shading is not None:
+            shading = replace(shading, albedo=rotate_sh(shading.albedo, first[:, :3, :3], parts),
+                              normals=per_part(shading.normals, parts, first[:, :3, :3]))
+        return replace(reconstruction, gaussians=pose_gaussians(reconstruction.gaussians, parts, first),
+                       shading=shading)
+
     def fitted_prior(self, prior: SpatPrior) -> SpatPrior:
         """``prior`` (as filmed) with the fitted poses."""
         return prior.with_poses(self.poses, self.centres)
 
-    def epoch_done(self) -> None:
-        """After a pass over the frames: the tracks' points follow the poses."""
+    def epoch_done(self, frame_loss: Callable[[int, np.ndarray], float], it: int, total: int) -> None:
+        """After a pass over the frames: after the warm-up, frames that stand out try their neighbours' poses
+        (:meth:`try_neighbours`); the tracks' points follow the poses."""
+        if it >= int(self.options.warmup * total):
+            self.try_neighbours(frame_loss)
         if self.points:
             self.solve_points()
+
+    def try_neighbours(self, frame_loss: Callable[[int, np.ndarray], float]) -> None:
+        """A frame whose loss is over :data:`OUTLIER_LOSS` times the median (tracks that slipped by tens of
+        degrees, beyond what its gradient can climb back) takes the pose of a neighbour with a lower loss, whole or
+        turned about its own centre, when that renders it better: ``frame_loss(t, poses (K, 4, 4))``, its loss
+        so posed. A run of such frames mends from its ends, a frame per pass."""
+        known = ~np.isnan(self.losses)
+        if known.sum() < 3:
+            return
+        median = float(np.median(self.losses[known]))
+        t_count = self.poses.shape[1]
+        for t in np.flatnonzero(known & (self.losses > OUTLIER_LOSS * median)):
+            best, best_loss = None, frame_loss(t, self.poses[:, t])
+            for n in (t - 1, t + 1):
+                if not 0 <= n < t_count or not known[n] or self.losses[n] >= self.losses[t]:
+                    continue
+                turned = self.poses[:, n].copy()  # the neighbour's rotation about this frame's centres
+                pivots = self.pivots(t)
+                turned[:, :3, 3] = pivots - np.einsum("kij,kj->ki", turned[:, :3, :3], self.centres)
+                for candidate in (self.poses[:, n], turned):
+                    loss = frame_loss(t, candidate)
+                    if loss < best_loss:
+                        best, best_loss = candidate.copy(), loss
+            if best is not None:
+                self.poses[:, t] = best
+                self.losses[t] = best_loss
+                self.m[t], self.v[t], self.steps[t] = 0.0, 0.0, 0
+                self.free[t] = True
 
 
 @dataclass(frozen=True)
@@ -414,7 +473,7 @@ def joint_fit(frames, masks, prior: SpatPrior, *, options: JointOptions = JointO
     reconstruction = reconstruct_object(frames, masks, pose_fit.fitted_prior(filmed),
                                         options=options.reconstruction(fitting),
                                         progress=progress, pose_fit=pose_fit)
-    fitted = pose_fit.poses
+    fitted, centres = pose_fit.poses, pose_fit.centres
     cameras = prior.extras.get(CAMERA_EXTRA)
     world = fitted if cameras is None else invert_transform(np.asarray(cameras, np.float64))[None] @ fitted
     refined = prior.with_poses(world, centres)

@@ -520,7 +520,7 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
     prior = SpatPrior.from_poses(poses, centroids, np.array([p.radius for p in parts]), extras=extras,
                                  metadata=metadata, **common)
     if options.joint_fit and depths is None:
-        prior = _fit_jointly(prior, frames, masks, options, stages, centres)
+        prior = _fit_jointly(prior, frames, masks, options, stages)
     failed = prior.metadata["failed_frames"]
     if failed:
         listed = ", ".join(list(failed)[:10])
@@ -531,8 +531,7 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
     return prior
 
 
-def _fit_jointly(prior: SpatPrior, frames, masks, options: ExtractOptions, stages: _Stages,
-                 centres: np.ndarray) -> SpatPrior:
+def _fit_jointly(prior: SpatPrior, frames, masks, options: ExtractOptions, stages: _Stages) -> SpatPrior:
     """The prior with its poses fitted again together with the object (:func:`joint_fit`), smoothed as before.
 
     A failed (interpolated) part-frame whose fitted silhouette then matches its mask (IoU >= :data:`PLACED_IOU`)
@@ -545,7 +544,7 @@ def _fit_jointly(prior: SpatPrior, frames, masks, options: ExtractOptions, stage
         return dataclasses.replace(prior, metadata=metadata)
     with stages("joint", "fitting poses and object together") as progress:
         fit = joint_fit(frames, masks, prior, options=options.joint, progress=progress)
-        poses = fit.prior.poses
+        poses, centres = fit.prior.poses, fit.prior.centroids[:, 0]  # frame 0 may have moved (its tracks slipped)
         if options.smoothing > 0:
             poses = smooth_poses(poses, options.smoothing, centers=centres)
         refined = prior.with_poses(poses, centres)
