@@ -13,7 +13,8 @@ from marionette.geometry import axis_angle_to_matrix, matrix_to_axis_angle, rota
 from marionette.prior import SpatPrior
 from marionette.reconstruct import ReconstructOptions, reconstruct_object
 from marionette.reconstruct import joint
-from marionette.reconstruct.joint import JointOptions, PoseFit, TrackObservations, joint_fit, triangulate_tracks
+from marionette.reconstruct.joint import (JointOptions, PoseFit, TrackObservations, joint_fit, placed_on_masks,
+                                         triangulate_tracks)
 from marionette.source.tracks import track
 from marionette.synthetic import make_scene, perturbed_prior
 
@@ -166,6 +167,51 @@ def test_a_lost_frame_far_from_its_mask_is_placed_on_it():
         assert iou > 0.9 and stray <= 0.005, (t, iou, stray)
     error = rotation_angle_deg(fit.prior.poses[0, lost, :3, :3] @ truth.poses[0, lost, :3, :3].swapaxes(-1, -2))
     assert error.max() < 1.0
+
+
+@pytest.mark.parametrize("cover", ["none", "middle", "side"])
+def test_a_lost_frame_is_placed_at_its_depth_when_something_in_front_hides_part_of_it(cover):
+    """The depth of a lost frame comes from its mask's box against the nearest tracked frame's: a trunk across
+    the middle, or over one side, of the object leaves one of its sides whole (by the area, the object would be
+    put ~1.4 times too far)."""
+    scene = make_scene("translation", num_frames=12, size=(192, 144), seed=3)
+    truth = scene.ground_truth_prior()
+    masks = np.array(scene.masks)
+    lost = 6
+    ys, xs = np.nonzero(masks[lost])
+    x0, x1 = xs.min(), xs.max()
+    band = {"none": slice(0, 0), "middle": slice((2 * x0 + x1) // 3, (x0 + 2 * x1) // 3),
+            "side": slice(x0, (x0 + x1) // 2)}[cover]
+    masks[lost][:, band] = False
+    poses = truth.poses.copy()
+    poses[0, lost, :3, 3] += [1.2 * truth.radii[0], 0.4 * truth.radii[0], 0.5 * truth.radii[0]]
+    centre = truth.centroids[0, 0]
+    placed = placed_on_masks(poses, centre, masks, truth.intrinsics, [lost])
+    depth = (placed[0, lost, :3, :3] @ centre + placed[0, lost, :3, 3])[2]
+    assert depth == pytest.approx(truth.centroids[0, lost, 2], rel=0.1), cover
+    others = [t for t in range(truth.num_frames) if t != lost]
+    np.testing.assert_array_equal(placed[:, others], poses[:, others])
+
+
+def test_lost_frames_mostly_hidden_stay_on_what_shows_of_them():
+    """A fast object lost for three frames behind something that hides two thirds of it: those frames are
+    drawn over what shows of them (their loss stands out, and they try their neighbours' poses)."""
+    scene = make_scene("translation", num_frames=48, size=(192, 144), seed=3)
+    every = slice(None, None, 4)  # a fast object: its neighbours' poses are far off
+    truth = scene.ground_truth_prior()
+    masks = np.array(scene.masks[every])
+    lost = [5, 6, 7]
+    for t in lost:
+        xs = np.nonzero(masks[t].any(axis=0))[0]
+        masks[t][:, : xs.min() + 2 * (xs.max() - xs.min()) // 3] = False
+    start = SpatPrior.from_poses(truth.poses[:, every], truth.centroids[:, every], truth.radii, fps=truth.fps,
+                                 image_size=tuple(truth.image_size), intrinsics=truth.intrinsics,
+                                 metadata={"failed_frames": {f"0:{t}": "lost" for t in lost}})
+    fit = joint_fit(scene.frames[every], masks, start, options=JointOptions(visits=40))
+    filmed = fit.prior.motion_in("filmed")
+    for t in lost:
+        drawn = fit.reconstruction.render_filmed(filmed, t).alpha >= 0.5
+        assert (drawn & masks[t]).sum() / masks[t].sum() > 0.9, t
 
 
 def test_no_frame_draws_anything_far_from_its_mask_after_a_fit():

@@ -366,9 +366,10 @@ def _poses_epoch(pose_fit: PoseFit, params: dict, parts: np.ndarray, views: Sequ
     (``poses``, ``q_pose``: frame → (K, 4, 4), (K, 4)) updated from it."""
     by_frame = {view.frame: view for view in views}
 
-    def frame_loss(t: int, pose: np.ndarray) -> float:
+    def frame_loss(t: int, pose: np.ndarray) -> float:  # past the crop too: else, moving an object that shows
+        # a sliver (a ball behind a trunk) off its small crop would look cheap
         return _view_loss(params, parts, by_frame[t], pose, matrix_to_quaternion(pose[:, :3, :3]),
-                          options.mask_weight, light, options.ssim_weight)
+                          options.mask_weight, light, options.ssim_weight, options.outside_weight)
 
     pose_fit.epoch_done(frame_loss, it, options.iterations)
     for t in by_frame:
@@ -377,10 +378,12 @@ def _poses_epoch(pose_fit: PoseFit, params: dict, parts: np.ndarray, views: Sequ
 
 
 def _view_loss(params: dict, parts: np.ndarray, view: FitView, poses: np.ndarray, q_pose: np.ndarray,
-               mask_weight: float, light: dict | None, ssim_weight: float) -> float:
-    """Loss of one view (a forward render only)."""
-    out = render(_posed(params, parts, poses, q_pose, light)[0], view.camera, (1.0, 1.0, 1.0))
-    return _image_loss(out.image, out.alpha, view, mask_weight, ssim_weight)[0]
+               mask_weight: float, light: dict | None, ssim_weight: float, outside_weight: float = 0.0) -> float:
+    """Loss of one view (a forward render only); with ``outside_weight``, the silhouette term past the crop too."""
+    posed, (_, _, posed_means, *_) = _posed(params, parts, poses, q_pose, light)
+    out = render(posed, view.camera, (1.0, 1.0, 1.0))
+    loss = _image_loss(out.image, out.alpha, view, mask_weight, ssim_weight)[0]
+    return loss + _outside(params, posed_means, view, mask_weight * outside_weight)[0]
 
 
 def _outside(params: dict, posed_means: np.ndarray, view: FitView, weight: float) -> tuple[float, np.ndarray]:

@@ -422,8 +422,10 @@ def placed_on_masks(poses: np.ndarray, centre: np.ndarray, masks, K: np.ndarray,
 
     A frame the tracks lost has interpolated poses that can put the object far from where the frame shows it
     (a rolling ball), where no silhouette reaches it. Its parts are shifted together so that the centre
-    (3,) in the model's frame projects onto the mask's centroid, at the depth the mask's area gives relative
-    to the nearest tracked frame's (``z ∝ 1/√area``). ``masks`` (T, H, W) bool, ``K`` (3, 3).
+    (3,) in the model's frame projects onto the mask's centroid, at the depth its box gives relative to the
+    nearest tracked frame's (``z ∝ 1/size``, of the width and height the one that shrank least: something in
+    front, a trunk or a post, hides the object across one of them, and its area halves as a ball goes behind
+    it). ``masks`` (T, H, W) bool, ``K`` (3, 3).
     """
     poses = np.array(poses, dtype=np.float64)
     lost = sorted(set(int(t) for t in lost))
@@ -437,11 +439,17 @@ def placed_on_masks(poses: np.ndarray, centre: np.ndarray, masks, K: np.ndarray,
             continue
         ref = min(tracked, key=lambda r: abs(r - t))
         depth = (poses[0, ref, :3, :3] @ centre + poses[0, ref, :3, 3])[2] \
-            * np.sqrt(np.asarray(masks[ref], bool).sum() / mask.sum())
+            * np.min(_box_size(np.asarray(masks[ref], bool)) / _box_size(mask))
         ys, xs = np.nonzero(mask)
         target = inverse_k @ np.array([xs.mean(), ys.mean(), 1.0]) * depth
         poses[:, t, :3, 3] += target - (poses[0, t, :3, :3] @ centre + poses[0, t, :3, 3])
     return poses
+
+
+def _box_size(mask: np.ndarray) -> np.ndarray:
+    """(2,) width and height in pixels of the box around the (H, W) bool mask's pixels (not empty)."""
+    ys, xs = np.nonzero(mask)
+    return np.array([xs.max() - xs.min() + 1, ys.max() - ys.min() + 1], float)
 
 
 def joint_fit(frames, masks, prior: SpatPrior, *, options: JointOptions = JointOptions(),
