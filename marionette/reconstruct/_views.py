@@ -15,7 +15,7 @@ import numpy as np
 
 from ..camera import Camera
 
-__all__ = ["FitView", "make_view", "crop_box"]
+__all__ = ["FitView", "make_view", "crop_box", "box_size"]
 
 
 @dataclass(frozen=True)
@@ -42,6 +42,12 @@ class FitView:
     target: np.ndarray
     mask: np.ndarray
     frame_box: tuple[int, int, int, int] | None = None
+
+
+def box_size(mask: np.ndarray) -> np.ndarray:
+    """(2,) width and height in pixels of the box around the (H, W) bool mask's pixels (not empty)."""
+    ys, xs = np.nonzero(mask)
+    return np.array([xs.max() - xs.min() + 1, ys.max() - ys.min() + 1], float)
 
 
 def crop_box(mask: np.ndarray, margin: float = 0.1, pad: int = 4) -> tuple[int, int, int, int]:

@@ -49,7 +49,7 @@ from ..render.backward import render_with_grad
 from ..render.sh import rotate_sh
 from ..trajectory import Trajectory
 from ._init import initial_gaussians, pose_gaussians
-from ._views import FitView, make_view
+from ._views import FitView, box_size, make_view
 from .posing import per_part
 from .quality import FitQuality, fit_quality
 from .shading import (
@@ -281,12 +281,6 @@ def _check_inputs(frames, masks, prior: SpatPrior, frames_used: Sequence[int] | 
     if not used or any(not 0 <= i < t for i in used) or len(set(used)) != len(used):
         raise InputError(f"frames_used must be distinct frame indices in 0..{t - 1}")
     return sorted(used)
-
-
-def _box_side(mask: np.ndarray) -> int:
-    """Long side in pixels of the box around the mask's (H, W) bool pixels (not empty)."""
-    ys, xs = np.nonzero(mask)
-    return int(max(xs.max() - xs.min(), ys.max() - ys.min())) + 1
 
 
 def gaussian_budget(views: Sequence[FitView], options: ReconstructOptions) -> int:
@@ -553,7 +547,7 @@ def reconstruct_object(frames, masks, prior: SpatPrior, *, frames_used: Sequence
     for t in visible:  # each frame read once (a video decodes it again on every read)
         image, mask = np.asarray(frames[t]), np.asarray(masks[t], bool)
         if options.object_side is not None:
-            scale = min(1.0, options.object_side / _box_side(mask))
+            scale = min(1.0, options.object_side / box_size(mask).max())
         views.append(make_view(t, image, mask, prior.intrinsics, scale))
         if coarse_steps:
             coarse.append(make_view(t, image, mask, prior.intrinsics, scale / 2))

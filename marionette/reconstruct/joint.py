@@ -49,6 +49,7 @@ from ..prior import CAMERA_EXTRA, SpatPrior
 from ..progress import ProgressCallback
 from ..render.sh import rotate_sh
 from ._init import pose_gaussians
+from ._views import box_size
 from .fit import Reconstruction, ReconstructOptions, reconstruct_object
 from .posing import per_part
 
@@ -382,11 +383,11 @@ class PoseFit:
         t_count = self.poses.shape[1]
         for t in np.flatnonzero(known & (self.losses > OUTLIER_LOSS * median)):
             best, best_loss = None, frame_loss(t, self.poses[:, t])
+            pivots = self.pivots(t)
             for n in (t - 1, t + 1):
                 if not 0 <= n < t_count or not known[n] or self.losses[n] >= self.losses[t]:
                     continue
                 turned = self.poses[:, n].copy()  # the neighbour's rotation about this frame's centres
-                pivots = self.pivots(t)
                 turned[:, :3, 3] = pivots - np.einsum("kij,kj->ki", turned[:, :3, :3], self.centres)
                 for candidate in (self.poses[:, n], turned):
                     loss = frame_loss(t, candidate)
@@ -439,17 +440,11 @@ def placed_on_masks(poses: np.ndarray, centre: np.ndarray, masks, K: np.ndarray,
             continue
         ref = min(tracked, key=lambda r: abs(r - t))
         depth = (poses[0, ref, :3, :3] @ centre + poses[0, ref, :3, 3])[2] \
-            * np.min(_box_size(np.asarray(masks[ref], bool)) / _box_size(mask))
+            * np.min(box_size(np.asarray(masks[ref], bool)) / box_size(mask))
         ys, xs = np.nonzero(mask)
         target = inverse_k @ np.array([xs.mean(), ys.mean(), 1.0]) * depth
         poses[:, t, :3, 3] += target - (poses[0, t, :3, :3] @ centre + poses[0, t, :3, 3])
     return poses
-
-
-def _box_size(mask: np.ndarray) -> np.ndarray:
-    """(2,) width and height in pixels of the box around the (H, W) bool mask's pixels (not empty)."""
-    ys, xs = np.nonzero(mask)
-    return np.array([xs.max() - xs.min() + 1, ys.max() - ys.min() + 1], float)
 
 
 def joint_fit(frames, masks, prior: SpatPrior, *, options: JointOptions = JointOptions(),
