@@ -62,6 +62,7 @@ BENCHES = (
     Bench("bench_foreground.py", "foreground.md", needs_data=True),
     Bench("bench_rasterizer.py", "rasterizer.md", quick=("--runs", "3", "--no-reference")),
     Bench("bench_mesh_target.py", "mesh_target.md", quick=("--runs", "1")),
+    Bench("bench_unseen_sides.py", "unseen_sides.md", quick=("--seeds", "1", "--runs", "1")),
     Bench("bench_transfer.py", "transfer.md", quick=("--runs", "1", "--gaussians", "50000")),
     Bench("bench_ablation.py", "ablation.md", needs_data=True),
     Bench("paper_setting.py", "paper_setting.md", quick=("--runs", "1")),

@@ -505,7 +505,8 @@ Motion = Annotated[str, typer.Option(
 TargetDepth = Annotated[Optional[Path], typer.Option(
     help="Depth map of the photo (16-bit PNG in mm, or .npy) to shape it.", rich_help_panel=TARGET)]
 TargetShape = Annotated[str, typer.Option(
-    "--shape", help="Shape prior: auto, inflate, revolve (pots) or extrude (boxes).", rich_help_panel=TARGET)]
+    "--shape", help="Shape prior: auto, cuboid (boxes), revolve (pots), extrude, inflate.",
+    rich_help_panel=TARGET)]
 Polish = Annotated[int, typer.Option(
     help="Steps fitting the lifted photo's colours to it (sharper; 0: off).", rich_help_panel=TARGET)]
 TargetMask = Annotated[Optional[Path], typer.Option(

@@ -25,7 +25,7 @@ def test_json_summary_lists_outputs_timings_and_figures(tmp_path, prior_file, ta
     assert summary["outputs"] == {"video": str(out), "preview": str(preview)}
     assert summary["figures"]["target"]["frames"] == 6 and summary["figures"]["target"]["gaussians"] > 100
     shape = summary["figures"]["target"]["shape"]  # the shape prior chosen for the photo, and why
-    assert shape["name"] in ("inflate", "revolve", "extrude") and not shape["forced"] and 0 <= shape["confidence"] <= 1
+    assert shape["name"] in ("inflate", "revolve", "extrude", "cuboid") and not shape["forced"] and 0 <= shape["confidence"] <= 1
     assert {"lifting target", "transfer", "rendering", "total"} <= set(summary["timings"])
     assert summary["timings"]["total"] >= summary["timings"]["rendering"] > 0
     gif = read_video(preview)

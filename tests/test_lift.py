@@ -66,7 +66,7 @@ def nearest_per_pixel(lifted):
 
 def test_lifted_gaussians_project_onto_their_pixels_and_have_unit_radius():
     img, inside = disc_image()
-    lifted = lift_image(img)
+    lifted = lift_image(img, options=LiftOptions(solids=False))  # sheets on the pixels' rays
     first, uv, z = nearest_per_pixel(lifted)
     assert np.all(z > 0)
     assert len(first) == inside.sum()  # every object pixel has surfels
@@ -114,7 +114,7 @@ def test_depth_for_radius_scales_with_focal():
 def test_relative_depth_sets_distance_over_size():
     img, _ = disc_image()
     for ratio in (4.0, 25.0):
-        lifted = lift_image(img, options=LiftOptions(relative_depth=ratio))
+        lifted = lift_image(img, options=LiftOptions(relative_depth=ratio, solids=False))
         m = lifted.gaussians.means.astype(np.float64)
         c = m.mean(axis=0)
         rms = np.sqrt(((m - c) ** 2).sum(axis=1).mean())

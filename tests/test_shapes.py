@@ -23,13 +23,15 @@ def vase_mask(size=(160, 120), tilt=0.0, spout=False):
     return mask
 
 
-def test_a_rectangle_and_a_box_seen_at_an_angle_are_extruded():
+def test_a_rectangle_and_a_box_seen_at_an_angle_are_boxes_other_polygons_extruded():
     rect = polygon_mask([(30, 30), (130, 30), (130, 90), (30, 90)])
     choice = choose_shape(rect)
-    assert choice.name == "extrude" and not choice.forced and choice.corners == 4
+    assert choice.name == "cuboid" and not choice.forced and choice.corners == 4
     assert choice.confidence > 0.97
     hexagon = polygon_mask([(20, 40), (70, 25), (140, 35), (140, 95), (70, 108), (20, 92)])
-    assert choose_shape(hexagon).name == "extrude"
+    assert choose_shape(hexagon).name == "cuboid"
+    # A pentagon (a house's gable end) is no box: pushed straight back.
+    assert choose_shape(polygon_mask([(30, 60), (80, 20), (130, 60), (130, 110), (30, 110)])).name == "extrude"
 
 
 def test_round_symmetric_outlines_are_revolved_and_asymmetric_ones_inflated():
@@ -89,31 +91,6 @@ def test_an_extrusion_is_flat_with_rounded_edges():
     assert np.ptp(half[40:80, 40:120]) < 1e-6  # flat away from the outline
     assert half[60, 30] < half[60, 33] < half[60, 80]  # rounded toward the outline
     assert half[60, 30] > 0.5 * half[60, 80]  # a wall remains: rounded edges, not a cushion
-
-
-@pytest.mark.parametrize("pitch", [20, 0])  # from above; level (perspective alone bends the outline)
-def test_a_box_seen_at_an_angle_is_rebuilt_as_a_box_not_an_extruded_hexagon(pitch):
-    from marionette.geometry import axis_angle_to_matrix, matrix_to_quaternion
-    from marionette.render import render
-    from marionette.synthetic import object_view
-    from marionette.target.lift import LiftOptions, lift_image
-
-    def view(turn):
-        return object_view("box", size=(128, 128), seed=0, yaw_deg=30, pitch_deg=pitch, fov_deg=30, turn_deg=turn)
-
-    photo, camera, centre = view(0)
-    mask = photo[..., 3] > 0
-    offset, half, _ = shape_depth(mask, choose_shape(mask))
-    assert np.ptp(offset[mask]) > 10  # the faces slant: the mid-surface is no plane
-    lifted = lift_image(photo, camera=camera, options=LiftOptions(depth=float(centre[2])))
-    assert lifted.shape.name == "extrude"
-    r = axis_angle_to_matrix([0.0, np.radians(90), 0.0])
-    g = lifted.gaussians
-    turned = g.with_means((g.means - centre) @ r.T + centre).turned(matrix_to_quaternion(r))
-    seen = render(turned, camera).alpha > 0.5
-    truth = view(90)[0][..., 3] > 0
-    # Measured 0.92 and 0.95; the hexagon pushed straight back gave 0.71 and 0.75.
-    assert (seen & truth).sum() / (seen | truth).sum() > 0.88
 
 
 def test_a_handle_and_a_spout_facing_each_other_do_not_widen_the_body():

@@ -65,7 +65,8 @@ def _lift_frame(image: np.ndarray, mask: np.ndarray, prior: SpatPrior, t: int,
     inner = cv2.erode(mask.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
     mask = inner if inner.any() else mask
     stride = max(1, int(round(np.sqrt(mask.sum() / max(cells, 1)))))
-    lifted = lift_image(image, mask=mask, camera=camera, options=LiftOptions(depth=depth, stride=stride))
+    options = LiftOptions(depth=depth, stride=stride, solids=False)  # sheets on the rays: the fit shapes them
+    lifted = lift_image(image, mask=mask, camera=camera, options=options)
     return lifted.gaussians, lifted.pixel_of
 
 

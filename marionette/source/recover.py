@@ -108,7 +108,8 @@ class FrameRecovery:
             h, w = mask.shape
             centre_depth = float(transform_points(pose, self.centroid[None])[0, 2])
             stride = max(1, int(round(np.sqrt(mask.sum() / self.options.cells))))
-            camera, lift = Camera(self.K, np.eye(4), w, h), LiftOptions(depth=centre_depth, stride=stride)
+            camera = Camera(self.K, np.eye(4), w, h)
+            lift = LiftOptions(depth=centre_depth, stride=stride, solids=False)
             image = np.asarray(self.frames[source])
             lifted = lift_image(image, mask=mask, camera=camera, depth_map=_depth_map(mask, uv, depth), options=lift)
             if len(lifted.gaussians) > self.options.max_area * mask.sum() / stride ** 2:

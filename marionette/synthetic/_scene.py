@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -11,7 +12,7 @@ from ..errors import InputError
 from ..geometry import axis_angle_to_matrix, invert_transform, make_transform
 from ..prior import SpatPrior
 from ._motions import plan_camera, plan_motion
-from ._objects import make_box, make_cylinder, make_hinged_box, make_rod, make_vase
+from ._objects import Shape, make_box, make_cylinder, make_hinged_box, make_rod, make_vase
 from ._render import pixel_depth, render_shape, resolve, view_background
 from ._textures import background_texture
 
@@ -295,13 +296,14 @@ def render_object_image(object: str = "box", *, size: tuple[int, int] = (256, 25
 
 
 def object_view(object: str = "box", *, size: tuple[int, int] = (256, 256), seed: int = 0, yaw_deg: float = 30.0,
-                pitch_deg: float = 20.0, fov_deg: float = FOV_DEG,
-                turn_deg: float = 0.0) -> tuple[np.ndarray, Camera, np.ndarray]:
+                pitch_deg: float = 20.0, fov_deg: float = FOV_DEG, turn_deg: float = 0.0,
+                plain: bool = False) -> tuple[np.ndarray, Camera, np.ndarray]:
     """:func:`render_object_image`'s still (H, W, 4), its camera and the object's centre (3,) in the camera frame.
 
     ``fov_deg``: the camera's horizontal field of view (the object still spans ~80 % of the image; a
     narrower field is a longer lens, with less perspective). ``turn_deg``: the posed object then turned
     about the camera's vertical axis through its centre (the truth for a single-view lift turned so).
+    ``plain``: every face one colour, its texture's mean (shading alone varies it).
 
     The same ``object``, ``size`` and ``seed`` at other yaws show the same object turned about its own
     vertical axis (the camera's ``y`` axis tilted by ``pitch_deg``) through that centre: the truth for
@@ -317,6 +319,10 @@ def object_view(object: str = "box", *, size: tuple[int, int] = (256, 256), seed
     if not 1.0 <= fov_deg <= 170.0:
         raise InputError(f"fov_deg must be between 1 and 170, got {fov_deg!r}")
     local = _BUILDERS[object](_rng(seed, _TARGET, _GEOMETRY), _rng(seed, _TARGET, _TEXTURE), target=True)
+    if plain:
+        local = Shape(tuple(tuple(dataclasses.replace(f, texture=np.broadcast_to(
+            f.texture.mean(axis=(0, 1)), f.texture.shape).astype(np.float32)) for f in part) for part in local.parts),
+            local.hinge)
     camera = Camera.from_fov(width, height, fov_deg)
     rot = (axis_angle_to_matrix([0.0, np.radians(turn_deg), 0.0])
            @ axis_angle_to_matrix([np.radians(pitch_deg), 0.0, 0.0])

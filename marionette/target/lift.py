@@ -5,12 +5,13 @@ so the default is geometric: a shape prior chosen from the silhouette
 (:mod:`.shapes`: inflated, revolved or extruded) gives the object's depth,
 and its closed surface is sampled by area into flat Gaussians
 (:mod:`.surfels`), one on each visible pixel's ray where the surface faces
-the camera, so the reference view reproduces the image.
+the camera, so the reference view reproduces the image. A box is rebuilt as
+one, face by face (:mod:`.cuboid`).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -20,8 +21,10 @@ from ..camera import Camera
 from ..errors import InputError
 from ..gaussians import Gaussians
 from ..segment import grabcut_mask, salient_mask
+from .cuboid import MIN_BOX_IOU, cuboid_surfels, fit_cuboid
 from .polish import polish_reference
-from .shapes import SHAPES, ShapeChoice, choose_shape, inflate_silhouette, shape_depth
+from .revolution import MIN_REVOLUTION_IOU, fit_revolution, revolution_surfels
+from .shapes import SHAPES, ShapeChoice, choose_shape, inflate_silhouette, revolve_profile, shape_depth
 from .surfels import sample_surface
 
 __all__ = ["LiftOptions", "LiftedTarget", "lift_image", "object_mask", "alpha_mask", "inflate_silhouette",
@@ -65,6 +68,11 @@ class LiftOptions:
         Adam steps fitting the colours and opacities of the surfels the
         reference view sees to the photo
         (:func:`~marionette.target.polish.polish_reference`); 0 skips it.
+    solids : bool
+        Rebuild a box as a box and a pot as a solid of revolution, each
+        surface textured from where the photo shows it (a target seen from
+        every side). False keeps every prior's sheets on the pixels' rays: an
+        initial model that other views of the object will correct.
     """
 
     stride: int = 1
@@ -76,6 +84,7 @@ class LiftOptions:
     depth: float | None = None
     shape: str = "auto"
     polish: int = 0
+    solids: bool = True
 
 
 @dataclass(frozen=True)
@@ -210,6 +219,34 @@ def _focal_for_relative_depth(mask: np.ndarray, relief: np.ndarray, ratio: float
     return max(float(focal), 1.0)
 
 
+def _solid(choice: ShapeChoice, image: np.ndarray, mask: np.ndarray, camera: Camera, depth: float,
+           options: LiftOptions) -> tuple[Gaussians, np.ndarray, ShapeChoice, np.ndarray] | None:
+    """The object rebuilt as a box or a solid of revolution: (Gaussians, their pixels (N, 2), the choice with
+    the fit's measurements, (H, W) bool pixels left to sheets); None where the prior is a sheet's or the solid
+    does not cover the mask well enough (then the choice falls back to sheets)."""
+    radius_px = pixel_radius(mask)
+    if choice.name == "cuboid":
+        box = fit_cuboid(mask, camera, depth)
+        if box is None or (box.iou < MIN_BOX_IOU and not choice.forced):
+            if choice.forced:
+                raise InputError("--shape cuboid: the target's outline shows no box (neither a box's hexagon nor "
+                                 "a rectangle)")
+            return None
+        depthwise = np.argmax(np.abs(box.axes[:, 2])) == np.arange(3)
+        box = replace(box, half=box.half * np.where(depthwise, options.thickness, 1.0))
+        gaussians, pixel_of = cuboid_surfels(box, image, mask, camera, options.stride, options.opacity, radius_px)
+        return gaussians, pixel_of, replace(choice, solid_iou=box.iou), np.zeros(mask.shape, bool)
+    if choice.name == "revolve" and options.thickness == 1.0:
+        radius, _, pieces = revolve_profile(mask, *choice.axis)
+        body = fit_revolution(pieces == 1, radius, *choice.axis, camera, depth, image)
+        if body is None or body.iou < MIN_REVOLUTION_IOU:
+            return None
+        gaussians, pixel_of = revolution_surfels(body, image, pieces == 1, camera, options.stride, options.opacity,
+                                                 radius_px)
+        return gaussians, pixel_of, replace(choice, solid_iou=body.iou, pitch=body.pitch), pieces >= 2
+    return None
+
+
 def lift_image(image: np.ndarray, *, mask: np.ndarray | None = None, camera: Camera | None = None,
                depth_map: np.ndarray | None = None, options: LiftOptions = LiftOptions()) -> LiftedTarget:
     """Lift an (H, W, 3|4) uint8 image into Gaussians seen by ``camera`` as the image.
@@ -256,6 +293,21 @@ def lift_image(image: np.ndarray, *, mask: np.ndarray | None = None, camera: Cam
 
     s = options.stride
     centre_v, centre_u = np.arange(s // 2, h_img, s), np.arange(s // 2, w_img, s)
+    if options.solids and depth_map is None:
+        solid = _solid(choice, image, mask, camera, z0, options)
+        if solid is not None:
+            gaussians, pixel_of, choice, appendages = solid
+            if appendages.any():  # a handle or a spout: sheets of its own
+                cells = np.where(appendages, pieces, 0)[np.ix_(centre_v, centre_u)]
+                more, more_pixels = sample_surface(image, mask, cells, mid[np.ix_(centre_v, centre_u)],
+                                                   half[np.ix_(centre_v, centre_u)], camera, s, options.opacity,
+                                                   pixel_radius(mask))
+                gaussians = Gaussians.concatenate([gaussians, more])
+                pixel_of = np.concatenate([pixel_of, more_pixels])
+            gaussians, _ = polish_reference(gaussians, camera, image, mask, options.polish)
+            return LiftedTarget(gaussians, camera, mask, pixel_of, choice, image)
+    if choice.name == "cuboid":
+        choice = replace(choice, name="extrude")  # sheets over the outline
     cells = pieces[np.ix_(centre_v, centre_u)]
     gaussians, pixel_of = sample_surface(image, mask, cells, mid[np.ix_(centre_v, centre_u)],
                                          half[np.ix_(centre_v, centre_u)], camera, s, options.opacity,

@@ -1,9 +1,9 @@
 """Shape priors for a single-view lift: what volume a silhouette most likely bounds.
 
 One photo shows one side of an object; its depth must come from a prior.
-Three are offered, each a half-thickness map ``h`` (pixels) about a
-mid-surface (flat, but for a box seen at an angle), so the front surface lies
-``h`` before it and the back ``h`` behind:
+Three are sheets, each a half-thickness map ``h`` (pixels) about a flat
+mid-surface, so the front surface lies ``h`` before it and the back ``h``
+behind:
 
 - ``inflate``: the silhouette blown up into a rounded cushion,
   ``h = sqrt(u)`` with ``∇²u = -4`` inside and ``u = 0`` on the outline (a
@@ -12,21 +12,27 @@ mid-surface (flat, but for a box seen at an angle), so the front surface lies
   image (pots, bottles, vases, cans): each row of the silhouette's
   mirror-symmetric core is a circle's chord, ``h = sqrt(R_v² - (u - c_v)²)``.
   What breaks the symmetry (a spout, a handle) is inflated on its own.
-- ``extrude``: the outline pushed straight back with rounded edges (boxes,
+- ``extrude``: the outline pushed straight back with rounded edges (slabs,
   appliances, books): constant ``h`` away from the outline, a quarter circle
   of radius ``_EDGE_ROUNDING * depth`` at it. The depth is the shorter side
-  of the silhouette's smallest enclosing rectangle. A hexagonal outline whose
-  opposite sides are parallel and equal is a box seen at an angle: the box
-  itself is rebuilt (:func:`_cuboid`) rather than the hexagon extruded.
+  of the silhouette's smallest enclosing rectangle.
 
-:func:`choose_shape` picks one from the silhouette alone: ``extrude`` when
-the outline is a polygon of at most ``_MAX_CORNERS`` corners with straight
-sides (it fits within ``_POLYGON_TOLERANCE`` of the object's size, and nine
-tenths of the outline lie within ``_STRAIGHT`` of the tolerance, or a pixel
-and a quarter, of its sides: a can's elliptical ends bow away from them, a
-box's edges do not), else ``revolve`` when at least ``_MIN_SYMMETRY`` of the
-mask lies in its mirror image about the best near-vertical axis, else
-``inflate``.
+The fourth, ``cuboid``, is no sheet: a box rebuilt as a box, six faces from
+its outline (:mod:`.cuboid`); a hexagon whose sides pair up as a box's edges
+do, or a rectangle. Lifts that keep to sheets (``LiftOptions.solids``
+False) take a box's hexagon as sheets too: each pixel's front and back where
+its ray enters and leaves the box. Likewise a ``revolve`` lift is rebuilt as
+a solid of revolution about an axis that may lean towards the camera
+(:mod:`.revolution`), its profile from :func:`revolve_profile`.
+
+:func:`choose_shape` picks one from the silhouette alone: ``cuboid`` when
+the outline is a box's, ``extrude`` when it is another polygon of at most
+``_MAX_CORNERS`` corners with straight sides (it fits within
+``_POLYGON_TOLERANCE`` of the object's size, and nine tenths of the outline
+lie within ``_STRAIGHT`` of the tolerance, or a pixel and a quarter, of its
+sides: a can's elliptical ends bow away from them, a box's edges do not),
+else ``revolve`` when at least ``_MIN_SYMMETRY`` of the mask lies in its
+mirror image about the best near-vertical axis, else ``inflate``.
 """
 
 from __future__ import annotations
@@ -40,11 +46,13 @@ from scipy import ndimage, sparse
 from scipy.sparse.linalg import spsolve
 
 from ..errors import InputError
+from .cuboid import box_edges, box_outline, box_outline_edges
 
-__all__ = ["SHAPES", "ShapeChoice", "ShapeDepth", "choose_shape", "shape_depth", "inflate_silhouette"]
+__all__ = ["SHAPES", "ShapeChoice", "ShapeDepth", "choose_shape", "shape_depth", "inflate_silhouette",
+           "revolve_profile"]
 
 #: Shape prior names accepted by :func:`half_thickness` (``"auto"`` is :func:`choose_shape`'s).
-SHAPES = ("inflate", "revolve", "extrude")
+SHAPES = ("inflate", "revolve", "extrude", "cuboid")
 
 # A polygon approximates the outline within this share of sqrt(area) (at least _MIN_TOLERANCE px): a
 # circle needs 11 corners at this tolerance, a box seen at any angle at most 6 (a few more when small).
@@ -68,9 +76,6 @@ _APPENDAGE = 0.06
 _MIN_PIECE = 0.01
 # Edge radius of an extrusion, as a share of its depth.
 _EDGE_ROUNDING = 0.15
-# A box's outline is read as seen level when pairing the top chain's sides with the bottom's in the same
-# order matches their lengths better by this much (sum of |log length ratio|).
-_LEVEL_MARGIN = 0.1
 
 
 @dataclass(frozen=True)
@@ -92,6 +97,11 @@ class ShapeChoice:
     axis : tuple of float
         ``(column at the mask's centroid row, shift per row)`` of the best
         mirror axis.
+    solid_iou : float or None
+        How well the solid rebuilt for ``cuboid`` or ``revolve`` covers the
+        mask (IoU of its outline); None when none was built (sheets).
+    pitch : float or None
+        Degrees a solid of revolution's axis leans towards the camera.
     """
 
     name: str
@@ -101,18 +111,25 @@ class ShapeChoice:
     corners: int
     symmetry: float
     axis: tuple[float, float]
+    solid_iou: float | None = None
+    pitch: float | None = None
 
     def describe(self) -> str:
         """One line for ``--verbose``."""
         how = "forced" if self.forced else "chosen from the silhouette"
+        box = "" if self.solid_iou is None else f"; rebuilt as a solid covering {100 * self.solid_iou:.0f} %"
+        if self.pitch is not None:
+            box += f", its axis leaning {self.pitch:.1f}° towards the camera"
         return (f"shape prior {self.name} ({how}, confidence {self.confidence:.2f}): outline a {self.corners}-corner "
-                f"polygon at IoU {self.polygon_iou:.3f}, {100 * self.symmetry:.0f} % mirror-symmetric")
+                f"polygon at IoU {self.polygon_iou:.3f}, {100 * self.symmetry:.0f} % mirror-symmetric{box}")
 
     def as_dict(self) -> dict:
         """JSON-ready fields."""
         return {"name": self.name, "forced": self.forced, "confidence": round(self.confidence, 4),
                 "polygon_iou": round(self.polygon_iou, 4), "corners": self.corners,
-                "symmetry": round(self.symmetry, 4)}
+                "symmetry": round(self.symmetry, 4),
+                "solid_iou": None if self.solid_iou is None else round(self.solid_iou, 4),
+                "pitch": self.pitch}
 
 
 def _largest_outline(mask: np.ndarray) -> np.ndarray:
@@ -189,12 +206,12 @@ def choose_shape(mask: np.ndarray, shape: str = "auto") -> ShapeChoice:
     if shape != "auto":
         name = shape
     elif polygonal:
-        name = "extrude"
+        name = "cuboid" if box_outline_edges(mask) is not None else "extrude"
     elif symmetry >= _MIN_SYMMETRY:
         name = "revolve"
     else:
         name = "inflate"
-    confidence = {"extrude": iou, "revolve": symmetry,
+    confidence = {"extrude": iou, "cuboid": iou, "revolve": symmetry,
                   "inflate": 1.0 - max(iou if polygonal else 0.0, symmetry)}[name]
     return ShapeChoice(name, shape != "auto", float(np.clip(confidence, 0.0, 1.0)), iou, int(corners), symmetry,
                        (column, tilt))
@@ -234,9 +251,13 @@ def inflate_silhouette(mask: np.ndarray) -> np.ndarray:
     return out
 
 
-def _revolve(mask: np.ndarray, column: float, tilt: float) -> tuple[np.ndarray, np.ndarray]:
-    """(H, W) half-thickness of the symmetric core as circles' chords, the rest inflated on its own, and the
-    pieces (H, W) int32: 1 the body of revolution (with the slivers around it), 2… each appendage."""
+def revolve_profile(mask: np.ndarray, column: float, tilt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A surface of revolution's outline about a mirror axis: (radius (H,), chord (H, W) bool, pieces (H, W)).
+
+    The axis is at ``column`` on the mask's centroid row and moves ``tilt`` columns per row. ``radius``: the
+    half-length of each row's chord (its run of the mirror-symmetric body holding the axis), 0 off the body;
+    ``pieces`` int32: 1 the body (its chords with the slivers around them), 2… each appendage, 0 outside.
+    """
     h, w = mask.shape
     rows, cols = np.mgrid[0:h, 0:w]
     row0 = float(np.nonzero(mask)[0].mean())
@@ -260,11 +281,9 @@ def _revolve(mask: np.ndarray, column: float, tilt: float) -> tuple[np.ndarray, 
     run_on_axis = runs[np.arange(h), axis_col]  # (H,) label of the run on the axis, 0 if none
     chord = (runs > 0) & (runs == run_on_axis[:, None])
     radius = 0.5 * chord.sum(axis=1)  # (H,) pixels; the chord's pixels reach 1/2 beyond their centres
-    half = np.sqrt(np.clip(radius[:, None] ** 2 - (cols - axis) ** 2, 0.0, None)) * chord
     rest = mask & ~chord
     pieces = chord.astype(np.int32)
     if rest.any():
-        half = np.where(rest, inflate_silhouette(rest), half)
         components, count = ndimage.label(rest)
         # Appendages of some size are pieces of their own; slivers the opening shaved off the body stay with it.
         sizes = np.bincount(components.ravel(), minlength=count + 1)
@@ -272,6 +291,19 @@ def _revolve(mask: np.ndarray, column: float, tilt: float) -> tuple[np.ndarray, 
         own[0] = False
         piece_of = np.where(own, np.cumsum(own) + 1, 1)
         pieces = np.where(rest, piece_of[components], pieces).astype(np.int32)
+    return radius, chord, pieces
+
+
+def _revolve(mask: np.ndarray, column: float, tilt: float) -> tuple[np.ndarray, np.ndarray]:
+    """(H, W) half-thickness of the symmetric core as circles' chords, the rest inflated on its own, and the
+    pieces (:func:`revolve_profile`)."""
+    radius, chord, pieces = revolve_profile(mask, column, tilt)
+    rows, cols = np.mgrid[0:mask.shape[0], 0:mask.shape[1]]
+    axis = column + tilt * (rows - float(np.nonzero(mask)[0].mean()))
+    half = np.sqrt(np.clip(radius[:, None] ** 2 - (cols - axis) ** 2, 0.0, None)) * chord
+    rest = mask & ~chord
+    if rest.any():
+        half = np.where(rest, inflate_silhouette(rest), half)
     return half.astype(np.float32), pieces
 
 
@@ -286,69 +318,16 @@ def _extrude(mask: np.ndarray) -> np.ndarray:
     return np.where(mask, half_depth - rounding + edge, 0.0).astype(np.float32)
 
 
-def _box_edges(corners: np.ndarray) -> np.ndarray | None:
-    """A box's three edges in 3D (3, 3), pixel units, from its hexagonal outline (6, 2), or None.
-
-    The outline's two most vertical sides are the box's outer vertical edge ``c``; the others form a top
-    and a bottom chain of two sides each, left to right. Seen from above or below, the bottom chain runs
-    the top's sides in the other order (the outline of a box is then the hexagon ``a, b, c, -a, -b, -c``),
-    and orthogonal edges fix the depths: ``a_z b_z = -a·b`` and the two alike, so
-    ``a_z² = -(a·b)(a·c)/(b·c)``; of its two mirror readings the one showing the upper face is taken. Seen
-    level, both chains run alike (perspective bends them at the near vertical edge), ``c`` is
-    perpendicular to ``a`` and ``b`` and the products are 0/0: then ``c_z = 0`` and the two faces beside
-    the near edge turn away from it equally, ``-a_z = b_z = sqrt(a·b)`` (a box turned 30° with sides 1.7
-    and 1.05 has 0.85 and 0.91).
-    """
-    sides = np.roll(corners, -1, axis=0) - corners  # (6, 2), side k from corner k to k + 1
-    steep = np.abs(sides[:, 1]) / np.maximum(np.linalg.norm(sides, axis=1), 1e-9)
-    first = int(np.argmax(steep[:3] + steep[3:]))  # the pair k, k + 3 of most vertical opposite sides
-    if min(steep[first], steep[first + 3]) < 0.7:
-        return None
-    order = np.roll(np.arange(6), -first)  # sides: vertical, chain, chain, vertical, chain, chain
-    chains = [sides[order[1:3]], sides[order[4:6]]]
-    # Left to right (a chain walked right to left is reversed and negated); the top one's middle corner is higher.
-    chains = [ch if ch[:, 0].sum() > 0 else -ch[::-1] for ch in chains]
-    top, bottom = chains if corners[order[2], 1] < corners[order[5], 1] else chains[::-1]
-    down = [side if side[1] >= 0 else -side for side in (sides[order[0]], sides[order[3]])]
-    vertical = 0.5 * (down[0] + down[1])
-    # Which side of the bottom chain is which of the top's: the same edge projects to about the same length.
-    length = lambda u, v: abs(np.log(np.linalg.norm(u) / max(np.linalg.norm(v), 1e-9)))  # noqa: E731
-    same = length(top[0], bottom[0]) + length(top[1], bottom[1])
-    swapped = length(top[0], bottom[1]) + length(top[1], bottom[0])
-    if swapped < same + _LEVEL_MARGIN:  # seen from above or below (or alike either way: try that first)
-        a, b, c = 0.5 * (top[0] + bottom[1]), 0.5 * (top[1] + bottom[0]), vertical
-        ab, ac, bc = a @ b, a @ c, b @ c
-        if min(abs(ab), abs(ac), abs(bc)) > 1e-9 and -ab * ac / bc > 0:
-            a_z = np.sqrt(-ab * ac / bc)
-            edges = np.array([[*a, a_z], [*b, -ab / a_z], [*c, -ac / a_z]])
-            normals = edges / np.linalg.norm(edges, axis=1, keepdims=True)
-            upper = normals[np.argmax(np.abs(normals[:, 1]))]
-            if upper[1] * upper[2] < 0:  # the face toward the image's top faces the camera (y down, z away)
-                edges[:, 2] *= -1
-            return edges
-    a, b = 0.5 * (top[0] + bottom[0]), 0.5 * (top[1] + bottom[1])
-    if a @ b <= 0:
-        return None
-    depth = np.sqrt(a @ b)
-    return np.array([[*a, -depth], [*b, depth], [*vertical, 0.0]])
-
-
 def _cuboid(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """A box seen at an angle, rebuilt from its hexagonal outline: (offset, half) (H, W) pixels, or None.
+    """A box seen at an angle as sheets over its hexagonal outline: (offset, half) (H, W) pixels, or None.
 
-    The box's edges come from :func:`_box_edges`; each pixel's front and back are where its ray (taken
-    orthographic) enters and leaves the box.
+    The box's edges come from :func:`~.cuboid.box_edges`; each pixel's front and back are where its ray
+    (taken orthographic) enters and leaves the box.
     """
-    outline = _largest_outline(mask)
-    tolerance = _tolerance(mask)
-    for scale in (1.0, 1.5, 2.0):  # a small box's pixel steps may add a corner at the finest tolerance
-        polygon = cv2.approxPolyDP(outline, scale * tolerance, True)
-        if len(polygon) <= 6:
-            break
-    if len(polygon) != 6:
+    corners = box_outline(mask)
+    if corners is None or len(corners) != 6:
         return None
-    corners = polygon[:, 0].astype(np.float64)
-    edges = _box_edges(corners)
+    edges = box_edges(corners)
     if edges is None:
         return None
     normals = edges / np.linalg.norm(edges, axis=1, keepdims=True)
@@ -400,7 +379,7 @@ def shape_depth(mask: np.ndarray, choice: ShapeChoice) -> ShapeDepth:
     if choice.name == "revolve":
         half, pieces = _revolve(mask, *choice.axis)
         return ShapeDepth(flat, half, pieces)
-    if choice.name == "extrude":
+    if choice.name in ("extrude", "cuboid"):  # a box's sheets where its faces are not built (see lift_image)
         box = _cuboid(mask)
         return ShapeDepth(*box, whole) if box is not None else ShapeDepth(flat, _extrude(mask), whole)
     return ShapeDepth(flat, inflate_silhouette(mask), whole)

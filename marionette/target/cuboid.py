@@ -1,0 +1,341 @@
+"""A box in a photo rebuilt as a box: six flat faces, each textured from where the photo shows it.
+
+A lift of sheets over the silhouette (:mod:`.shapes`, :mod:`.surfels`) has to
+guess the hidden side of every pixel; a box needs no guess. Its outline (a
+hexagon seen from above or below, a rectangle seen square on) gives its three
+edges (:func:`box_edges`), refined in the photo's perspective camera until the
+projected box covers the mask (:func:`fit_cuboid`). Each face is then sampled
+on its own grid of flat Gaussians (:func:`cuboid_surfels`), coloured:
+
+- on a face the photo shows, by projecting each sample into the photo and
+  reading only that face's pixels: a face seen at a grazing angle is
+  unwarped from its sliver, not stretched from the outline;
+- on a hidden face whose opposite face shows, by mirror symmetry through the
+  box's mid-plane (a box's back from its front, as a car's far side is its
+  near side mirrored);
+- on a face neither shows (the top and bottom of a box seen level, the sides
+  of one seen square on), by texture synthesis (:mod:`.synthesis`): patches
+  of the best-seen face's unwarped texture, at its scale.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy import ndimage
+from scipy.optimize import least_squares
+
+from ..camera import Camera
+from ..gaussians import Gaussians
+from ..geometry import axis_angle_to_matrix, matrix_to_quaternion
+from ._solid import FLATNESS, MIN_VIEW_COSINE, OVERLAP, blur_level, project, sample_spacing
+from .surfels import _Texture
+from .synthesis import quilt
+
+__all__ = ["Cuboid", "box_outline", "box_edges", "box_outline_edges", "fit_cuboid", "cuboid_surfels", "MIN_BOX_IOU"]
+
+# A polygon approximates the outline within this share of sqrt(area) (the shape priors' tolerance).
+_TOLERANCE = 0.025
+_MIN_TOLERANCE = 2.0
+# The fitted box must cover the mask this well (IoU of its projection) to be taken for a box.
+MIN_BOX_IOU = 0.93
+# Points along the projected outline and along the mask's outline in the fit's residuals.
+_OUTLINE_SAMPLES = 128
+# Finite-difference steps of the fit's parameters: turn (rad), log half-lengths, centre (px).
+_STEPS = (1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 0.05, 0.05)
+# Robust scale of the outline residuals (pixels): what sticks out of the box (a handle) does not pull it.
+_ROBUST_PX = 1.5
+# Across a face's edge row the Gaussians are narrower (their alpha past the edge would grow the silhouette).
+_EDGE_OVERLAP = 0.4
+
+
+@dataclass(frozen=True)
+class Cuboid:
+    """A box in the camera frame (world units).
+
+    Attributes
+    ----------
+    centre : (3,) its centre.
+    axes : (3, 3) its edge directions as rows, a right-handed orthonormal frame.
+    half : (3,) its half-lengths along them.
+    iou : float, the IoU of its projection with the photo's mask.
+    """
+
+    centre: np.ndarray
+    axes: np.ndarray
+    half: np.ndarray
+    iou: float = 0.0
+
+    def corners(self) -> np.ndarray:
+        """(8, 3) corners."""
+        signs = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)], np.float64)
+        return self.centre + (signs * self.half) @ self.axes
+
+
+def _tolerance(mask: np.ndarray) -> float:
+    return max(_TOLERANCE * np.sqrt(mask.sum()), _MIN_TOLERANCE)
+
+
+def _outline(mask: np.ndarray) -> np.ndarray:
+    """(K, 2) float outline of the (H, W) mask's largest component."""
+    contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    return max(contours, key=cv2.contourArea)[:, 0].astype(np.float64)
+
+
+def box_outline(mask: np.ndarray) -> np.ndarray | None:
+    """The corners (6, 2) or (4, 2) of a box's outline in the (H, W) bool mask, pixels; None if it has neither."""
+    outline = _outline(mask).astype(np.int32)[:, None]
+    tolerance = _tolerance(mask)
+    for scale in (1.0, 1.5, 2.0):  # a small box's pixel steps may add a corner at the finest tolerance
+        polygon = cv2.approxPolyDP(outline, scale * tolerance, True)
+        if len(polygon) <= 6:
+            break
+    return polygon[:, 0].astype(np.float64) if len(polygon) in (4, 6) else None
+
+
+def box_edges(corners: np.ndarray) -> np.ndarray | None:
+    """A box's three edges in 3D (3, 3), pixel units (orthographic), from its hexagonal outline (6, 2), or None.
+
+    The outline's two most vertical sides are the box's outer vertical edge ``c``; the others form a top
+    and a bottom chain of two sides each, left to right. Seen from above or below, the bottom chain runs
+    the top's sides in the other order (the outline of a box is then the hexagon ``a, b, c, -a, -b, -c``),
+    and orthogonal edges fix the depths: ``a_z b_z = -a·b`` and the two alike, so
+    ``a_z² = -(a·b)(a·c)/(b·c)``; of its two mirror readings the one showing the upper face is taken. Seen
+    level, both chains run alike (perspective bends them at the near vertical edge), ``c`` is
+    perpendicular to ``a`` and ``b`` and the products are 0/0: then ``c_z = 0`` and the two faces beside
+    the near edge turn away from it equally, ``-a_z = b_z = sqrt(a·b)``.
+    """
+    sides = np.roll(corners, -1, axis=0) - corners  # (6, 2), side k from corner k to k + 1
+    steep = np.abs(sides[:, 1]) / np.maximum(np.linalg.norm(sides, axis=1), 1e-9)
+    first = int(np.argmax(steep[:3] + steep[3:]))  # the pair k, k + 3 of most vertical opposite sides
+    if min(steep[first], steep[first + 3]) < 0.7:
+        return None
+    order = np.roll(np.arange(6), -first)  # sides: vertical, chain, chain, vertical, chain, chain
+    chains = [sides[order[1:3]], sides[order[4:6]]]
+    # Left to right (a chain walked right to left is reversed and negated); the top one's middle corner is higher.
+    chains = [ch if ch[:, 0].sum() > 0 else -ch[::-1] for ch in chains]
+    top, bottom = chains if corners[order[2], 1] < corners[order[5], 1] else chains[::-1]
+    down = [side if side[1] >= 0 else -side for side in (sides[order[0]], sides[order[3]])]
+    vertical = 0.5 * (down[0] + down[1])
+    # Which side of the bottom chain is which of the top's: the same edge projects to about the same length.
+    length = lambda u, v: abs(np.log(np.linalg.norm(u) / max(np.linalg.norm(v), 1e-9)))  # noqa: E731
+    same = length(top[0], bottom[0]) + length(top[1], bottom[1])
+    swapped = length(top[0], bottom[1]) + length(top[1], bottom[0])
+    if swapped < same + 0.1:  # seen from above or below (or alike either way: try that first)
+        a, b, c = 0.5 * (top[0] + bottom[1]), 0.5 * (top[1] + bottom[0]), vertical
+        ab, ac, bc = a @ b, a @ c, b @ c
+        if min(abs(ab), abs(ac), abs(bc)) > 1e-9 and -ab * ac / bc > 0:
+            a_z = np.sqrt(-ab * ac / bc)
+            edges = np.array([[*a, a_z], [*b, -ab / a_z], [*c, -ac / a_z]])
+            normals = edges / np.linalg.norm(edges, axis=1, keepdims=True)
+            upper = normals[np.argmax(np.abs(normals[:, 1]))]
+            if upper[1] * upper[2] < 0:  # the face toward the image's top faces the camera (y down, z away)
+                edges[:, 2] *= -1
+            return edges
+    a, b = 0.5 * (top[0] + bottom[0]), 0.5 * (top[1] + bottom[1])
+    if a @ b <= 0:
+        return None
+    depth = np.sqrt(a @ b)
+    return np.array([[*a, -depth], [*b, depth], [*vertical, 0.0]])
+
+
+def box_outline_edges(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """(axes (3, 3) rows, half-lengths (3,) in pixels) of the box the (H, W) bool mask's outline shows, or None.
+
+    Read orthographically: a hexagon by :func:`box_edges`; a rectangle as a box seen square on, as deep as
+    its shorter side (what an extrusion assumes).
+    """
+    corners = box_outline(mask)
+    if corners is None:
+        return None
+    if len(corners) == 6:
+        edges = box_edges(corners)
+        if edges is None:
+            return None
+    else:  # seen square on: the rectangle's sides and a depth of its shorter side, as an extrusion has
+        (_, _), (w, h), angle = cv2.minAreaRect(_outline(mask).astype(np.float32))
+        t = np.radians(angle)
+        edges = np.array([[w * np.cos(t), w * np.sin(t), 0.0], [-h * np.sin(t), h * np.cos(t), 0.0],
+                          [0.0, 0.0, max(min(w, h), 1.0)]])
+    lengths = np.linalg.norm(edges, axis=1)
+    u, _, vt = np.linalg.svd(edges / lengths[:, None])  # the nearest rotation to the (nearly orthogonal) edges
+    axes = u @ vt
+    if np.linalg.det(axes) < 0:
+        axes[2] *= -1
+    return axes, 0.5 * lengths
+
+
+def _hull(cuboid: Cuboid, camera: Camera) -> np.ndarray:
+    """(K, 2) the projected box's outline, a convex polygon."""
+    points = project(cuboid.corners(), camera)
+    return points[cv2.convexHull(points.astype(np.float32), returnPoints=False)[:, 0]]
+
+
+def _along(polygon: np.ndarray, count: int) -> np.ndarray:
+    """(count, 2) points evenly spaced along a closed polygon (K, 2)."""
+    closed = np.vstack([polygon, polygon[:1]])
+    run = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(closed, axis=0), axis=1))])
+    at = np.linspace(0.0, run[-1], count, endpoint=False)
+    return np.stack([np.interp(at, run, closed[:, 0]), np.interp(at, run, closed[:, 1])], axis=1)
+
+
+def _distance_to_polygon(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
+    """(M,) distance of each point (M, 2) to the closed polygon's (K, 2) boundary."""
+    a, b = polygon, np.roll(polygon, -1, axis=0)
+    ab = b - a
+    t = np.clip(((points[:, None] - a) * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-12), 0.0, 1.0)
+    return np.linalg.norm(points[:, None] - (a + t[..., None] * ab), axis=-1).min(axis=1)
+
+
+def _fill(polygon: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(H, W) bool pixels whose centres lie in the convex polygon (K, 2)."""
+    out = np.zeros(shape, np.uint8)
+    cv2.fillConvexPoly(out, np.rint(polygon * 16).astype(np.int32), 1, cv2.LINE_8, shift=4)
+    return out.astype(bool)
+
+
+def _iou(a: np.ndarray, b: np.ndarray) -> float:
+    return float((a & b).sum() / max((a | b).sum(), 1))
+
+
+def fit_cuboid(mask: np.ndarray, camera: Camera, depth: float) -> Cuboid | None:
+    """The box whose projection covers the (H, W) bool mask, its centre ``depth`` away; None if none is seen.
+
+    Starts from the outline read orthographically (:func:`box_outline_edges`), then fits its turn, size and
+    place across the image in the perspective camera: the projected outline onto the mask's (robust least
+    squares of the distances both ways). The result's ``iou`` says how well it covers the mask.
+    """
+    mask = np.asarray(mask, dtype=bool)
+    start = box_outline_edges(mask)
+    if start is None:
+        return None
+    axes0, half_px = start
+    f = 0.5 * (camera.fx + camera.fy)
+    v, u = np.nonzero(mask)
+    centre_px = np.array([u.mean(), v.mean()])
+    outline = _outline(mask)
+    outline = outline[np.linspace(0, len(outline) - 1, min(len(outline), _OUTLINE_SAMPLES)).astype(int)]
+    inside = ndimage.distance_transform_edt(mask)
+    signed = ndimage.distance_transform_edt(~mask) - np.maximum(inside - 1.0, 0.0)  # 0 on the outline's pixels
+
+    def box(x: np.ndarray) -> Cuboid:
+        axes = axis_angle_to_matrix(x[:3]) @ axes0.T
+        at = centre_px + x[6:8]
+        centre = np.array([(at[0] - camera.cx) / camera.fx, (at[1] - camera.cy) / camera.fy, 1.0]) * depth
+        return Cuboid(centre, axes.T, half_px * np.exp(x[3:6]) * depth / f)
+
+    def residuals(x: np.ndarray) -> np.ndarray:
+        hull = _hull(box(x), camera)
+        on_hull = _along(hull, _OUTLINE_SAMPLES)
+        from_hull = ndimage.map_coordinates(signed, [on_hull[:, 1], on_hull[:, 0]], order=1, mode="nearest")
+        return np.concatenate([from_hull, _distance_to_polygon(outline, hull)])
+
+    def jacobian(x: np.ndarray) -> np.ndarray:  # central differences of fixed size: rel. steps vanish at x = 0
+        columns = []
+        for k, step in enumerate(_STEPS):
+            dx = np.zeros_like(x)
+            dx[k] = step
+            columns.append((residuals(x + dx) - residuals(x - dx)) / (2 * step))
+        return np.stack(columns, axis=1)
+
+    fit = least_squares(residuals, np.zeros(8), jac=jacobian, loss="soft_l1", f_scale=_ROBUST_PX, max_nfev=100)
+    best = box(fit.x)
+    return Cuboid(best.centre, best.axes, best.half, _iou(_fill(_hull(best, camera), mask.shape), mask))
+
+
+def _faces(cuboid: Cuboid) -> list[tuple[int, float, np.ndarray]]:
+    """(axis k, side ±1, face centre (3,)) of the six faces."""
+    return [(k, s, cuboid.centre + s * cuboid.half[k] * cuboid.axes[k]) for k in range(3) for s in (-1.0, 1.0)]
+
+
+def _cosine(normal: np.ndarray, point: np.ndarray) -> float:
+    """How squarely a face with outward ``normal`` through ``point`` faces a camera at the origin (< 0: away)."""
+    return float(-normal @ point / max(np.linalg.norm(point), 1e-12))
+
+
+def _face_pixels(cuboid: Cuboid, k: int, s: float, camera: Camera, mask: np.ndarray) -> np.ndarray:
+    """(H, W) bool object pixels inside the projection of face (k, s)."""
+    i, j = [m for m in range(3) if m != k]
+    centre = cuboid.centre + s * cuboid.half[k] * cuboid.axes[k]
+    quad = [centre + a * cuboid.half[i] * cuboid.axes[i] + b * cuboid.half[j] * cuboid.axes[j]
+            for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
+    return _fill(project(np.array(quad), camera), mask.shape) & mask
+
+
+def cuboid_surfels(cuboid: Cuboid, image: np.ndarray, mask: np.ndarray, camera: Camera, stride: int,
+                   opacity: float, radius_px: float) -> tuple[Gaussians, np.ndarray]:
+    """Flat Gaussians over the box's six faces, coloured as the module says, in the camera's world frame.
+
+    Parameters
+    ----------
+    cuboid : the box in the camera frame; image : (H, W, 3|4) uint8 photo; mask : (H, W) bool its object.
+    camera : the photo's camera. stride : int, sample spacing in pixels at the box's centre (at least; a
+        budget of samples per object pixel may widen it). opacity : float, of every Gaussian.
+    radius_px : float, the object's RMS radius in pixels (scales the blur of slanted faces).
+
+    Returns
+    -------
+    (Gaussians, pixel_of): N Gaussians, and the (N, 2) int32 (u, v) photo pixel each took its colour from
+    (for a synthesised face, the one it covers in the photo).
+    """
+    rgb = image[..., :3]
+    area = 8.0 * (cuboid.half[0] * cuboid.half[1] + cuboid.half[1] * cuboid.half[2] + cuboid.half[0] * cuboid.half[2])
+    spacing = sample_spacing(area, float(cuboid.centre[2]), camera, stride, int(mask.sum()))
+    faces = _faces(cuboid)
+    cosines = [_cosine(s * cuboid.axes[k], c) for k, s, c in faces]
+    grids, seen = [], {}
+    for index, (k, s, centre) in enumerate(faces):
+        i, j = [m for m in range(3) if m != k]
+        n_i, n_j = (max(1, int(np.ceil(2 * cuboid.half[m] / spacing))) for m in (i, j))
+        a = (np.arange(n_i) + 0.5) / n_i * 2 - 1
+        b = (np.arange(n_j) + 0.5) / n_j * 2 - 1
+        points = (centre + a[:, None, None] * cuboid.half[i] * cuboid.axes[i]
+                  + b[None, :, None] * cuboid.half[j] * cuboid.axes[j])  # (n_i, n_j, 3)
+        grids.append((points, np.array([2 * cuboid.half[i] / n_i, 2 * cuboid.half[j] / n_j])))
+        if cosines[index] >= MIN_VIEW_COSINE:
+            seen[index] = _Texture(rgb, _face_pixels(cuboid, k, s, camera, mask), radius_px)
+    colours: list[np.ndarray | None] = [None] * 6
+    sources = [grids[i][0] for i in range(6)]
+    for index, (k, s, _) in enumerate(faces):  # a face the photo shows, or its mirror image
+        mirror = index ^ 1  # faces come in pairs (k, -1), (k, +1)
+        owner = index if index in seen else mirror if mirror in seen else None
+        if owner is None:
+            continue
+        points = grids[index][0] - (0.0 if owner == index else 2 * s * cuboid.half[k] * cuboid.axes[k])
+        sources[index] = points
+        uv = project(points.reshape(-1, 3), camera)
+        level = np.full(len(uv), blur_level(cosines[owner]))
+        colours[index] = seen[owner].sample(uv[:, 0], uv[:, 1], level).reshape(
+            *points.shape[:2], 3)
+    if any(c is None for c in colours):  # faces nobody sees: quilted from the best-seen face
+        best = int(np.argmax([cosines[i] * np.prod(grids[i][0].shape[:2]) for i in range(6)]))
+        rng = np.random.default_rng(0)
+        for index in range(6):
+            if colours[index] is None:
+                colours[index] = quilt(colours[best], grids[index][0].shape[:2], rng)
+    c2w = np.linalg.inv(camera.world_to_camera)
+    means, scales, quats, rgbs, pixels = [], [], [], [], []
+    for index, (k, s, _) in enumerate(faces):
+        i, j = [m for m in range(3) if m != k]
+        frame = np.stack([cuboid.axes[i], cuboid.axes[j], s * cuboid.axes[k]], axis=1)  # columns: in-plane, normal
+        if np.linalg.det(frame) < 0:
+            frame[:, 0] *= -1
+        points, step = grids[index]
+        count = points.shape[0] * points.shape[1]
+        n_i, n_j = points.shape[:2]
+        width = np.empty((n_i, n_j, 3))
+        width[..., 0] = np.where(np.isin(np.arange(n_i), (0, n_i - 1)), _EDGE_OVERLAP, OVERLAP)[:, None] * step[0]
+        width[..., 1] = np.where(np.isin(np.arange(n_j), (0, n_j - 1)), _EDGE_OVERLAP, OVERLAP)[None, :] * step[1]
+        width[..., 2] = FLATNESS * OVERLAP * step.min()
+        means.append(points.reshape(-1, 3))
+        scales.append(width.reshape(-1, 3))
+        quats.append(np.tile(matrix_to_quaternion(c2w[:3, :3] @ frame), (count, 1)))
+        rgbs.append(colours[index].reshape(-1, 3))
+        uv = project(sources[index].reshape(-1, 3), camera)
+        pixels.append(np.clip(np.rint(uv), 0, [camera.width - 1, camera.height - 1]))
+    means = np.concatenate(means) @ c2w[:3, :3].T + c2w[:3, 3]
+    gaussians = Gaussians.from_rgb(means, np.clip(np.concatenate(rgbs), 0.0, 1.0), np.concatenate(scales), opacity,
+                                   np.concatenate(quats))
+    return gaussians, np.concatenate(pixels).astype(np.int32)

@@ -1,0 +1,351 @@
+"""A pot, a can or a bottle rebuilt as a surface of revolution about its own axis, tilted as the photo shows it.
+
+The sheets of the ``revolve`` prior (:mod:`.shapes`) put the axis in the image
+plane; a photo taken from a little above shows the top, and the object turned
+about its own axis then swings out of its outline. Here the axis leans out of
+the image plane by the angle the outline's ends show: under a pitch ``p`` a
+ring of radius ``r`` projects to an ellipse ``r sin p`` tall, so the ends of the
+outline are half ellipses and the profile read between them is shortened by
+``cos p``. The pitch is the one whose rebuilt body covers the mask best
+(:func:`fit_revolution`, seen from above, as photos of such things are).
+
+The closed surface (side and both end discs) is sampled on grids of flat
+Gaussians (:func:`revolution_surfels`) coloured, like a box's faces
+(:mod:`.cuboid`), from the photo where its own pixels show it (a z-buffer of
+the surface decides what shows), else from its mirror image through the
+plane of the axis across the view, else by texture synthesis from the
+visible side: nothing is stretched from the rim, and what a handle hides
+is not filled with the handle.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy import ndimage
+
+from ..camera import Camera
+from ..gaussians import Gaussians
+from ..geometry import matrix_to_quaternion
+from ._solid import FLATNESS, MIN_VIEW_COSINE, OVERLAP, blur_level, project, sample_spacing
+from .surfels import _Texture
+from .synthesis import fill_unseen, quilt
+
+__all__ = ["Revolution", "fit_revolution", "revolution_surfels", "MIN_REVOLUTION_IOU"]
+
+# The rebuilt body must cover the body's mask this well (IoU of its outline) to be taken.
+MIN_REVOLUTION_IOU = 0.9
+
+# Pitches tried (degrees): how far the axis leans out of the image plane, its top towards the camera.
+_PITCHES = np.arange(0.0, 45.1, 2.5)
+# Pitches whose outline covers the mask within this IoU of the best one's are told apart by the top rim.
+_IOU_TOLERANCE = 0.01
+# The rim's edge: the photo blurred this much (px), sampled at this many points along the rim's near half,
+# and taken when it is this many times the object's median gradient.
+_EDGE_BLUR = 1.5
+_RIM_SAMPLES = 64
+_RIM_CONTRAST = 4.0
+# Running median of the profile over this share of its rows.
+_PROFILE_MEDIAN = 0.1
+# Rounds of scaling the rings until the outline's rows are as wide as the mask's.
+_WIDTH_STEPS = 3
+# ...the scale smoothed over this many rings (standard deviation): a pixel's step in the outline is no rib.
+_RATIO_SMOOTHING = 2.0
+# Vertices of each ring's ellipse when the body's outline is drawn.
+_RING_VERTICES = 96
+# A sample shows in the photo when it lies within this many spacings of the nearest surface at its pixel.
+_DEPTH_SLACK = 1.5
+
+
+@dataclass(frozen=True)
+class Revolution:
+    """A surface of revolution in the camera frame (world units).
+
+    Attributes
+    ----------
+    base : (3,) the axis at the bottom end.
+    axis : (3,) unit, bottom to top.
+    heights : (S,) increasing from 0: along the axis from ``base``.
+    radii : (S,) the radius at each height.
+    iou : float, the IoU of its projection with the body's mask.
+    pitch : float, degrees the axis leans out of the image plane (top towards the camera).
+    """
+
+    base: np.ndarray
+    axis: np.ndarray
+    heights: np.ndarray
+    radii: np.ndarray
+    iou: float = 0.0
+    pitch: float = 0.0
+
+    def frame(self) -> tuple[np.ndarray, np.ndarray]:
+        """(2, 3) two unit vectors across the axis: the first lies in the image plane."""
+        across = np.cross(self.axis, [0.0, 0.0, 1.0])
+        across /= max(np.linalg.norm(across), 1e-12)
+        return across, np.cross(self.axis, across)
+
+
+def _build(radius_rows: np.ndarray, column: float, tilt: float, row0: float, pitch: float, camera: Camera,
+           depth: float, max_column: int) -> Revolution | None:
+    """The body whose outline has half-width ``radius_rows`` (H,) per image row, under ``pitch`` degrees
+    (``max_column``: the image's width)."""
+    rows = np.nonzero(radius_rows > 0)[0]
+    if len(rows) < 3:
+        return None
+    top, bottom = float(rows[0]) - 0.5, float(rows[-1]) + 0.5  # the outline's extent, pixel edges
+    s = np.sin(np.radians(pitch))
+    c = np.cos(np.radians(pitch))
+    # Each end is seen from its own elevation, the pitch plus the angle of its rows below the image centre,
+    # from above or from below: its ellipse reaches r |sin e| past its centre either way.
+    s_top = abs(np.sin(np.radians(pitch) + np.arctan((top - camera.cy) / camera.fy)))
+    s_bottom = abs(np.sin(np.radians(pitch) + np.arctan((bottom - camera.cy) / camera.fy)))
+    # An end ring of radius r shows as half an ellipse r sin p tall past it: the end ring lies d rows in,
+    # the first d at which the outline is no wider than d / sin p.
+    inward = np.arange(len(rows))
+    d_top = inward[np.argmax(radius_rows[rows] * s_top <= inward + 0.5)]
+    d_bottom = inward[np.argmax(radius_rows[rows[::-1]] * s_bottom <= inward + 0.5)]
+    r_top, r_bottom = radius_rows[rows[d_top]], radius_rows[rows[::-1][d_bottom]]
+    y_top, y_bottom = top + r_top * s_top, bottom - r_bottom * s_bottom
+    if y_bottom - y_top < 2.0:
+        return None
+    ys = np.arange(np.ceil(y_top), np.floor(y_bottom) + 1.0)
+    radii = np.concatenate([[r_top], radius_rows[ys.astype(int)], [r_bottom]])[::-1]  # pixels, bottom to top
+    ys = np.concatenate([[y_top], ys, [y_bottom]])[::-1]
+    # The axis in the image runs up along (-tilt, -1); out of the plane it leans by the pitch towards the camera.
+    up = np.array([-tilt, -1.0]) / np.hypot(tilt, 1.0)
+    axis = np.array([up[0] * c, up[1] * c, -s])
+    centre_row = 0.5 * (y_top + y_bottom)
+    centre_px = np.array([column + tilt * (centre_row - row0), centre_row])
+    centre = np.array([(centre_px[0] - camera.cx) / camera.fx, (centre_px[1] - camera.cy) / camera.fy, 1.0]) * depth
+    # Each row's ring sits where the axis crosses that row's plane of sight, its radius scaled at its own depth.
+    k = (ys - camera.cy) / camera.fy
+    along = (centre[1] - k * centre[2]) / (k * axis[2] - axis[1])
+    ring_depth = centre[2] + along * axis[2]
+    heights = along - along[0]
+    base = centre + along[0] * axis
+    body = Revolution(base, axis, heights, radii * ring_depth / (0.5 * (camera.fx + camera.fy)), pitch=float(pitch))
+    # Perspective widens a near ring's outline past its radius: scale each ring until its row is as wide as
+    # the mask's (the end rings follow their neighbours).
+    row_of = np.clip(np.rint(ys).astype(int), rows[0], rows[-1])
+    for _ in range(_WIDTH_STEPS):
+        drawn = _outline_mask(body, camera, (len(radius_rows), max_column)).sum(axis=1) * 0.5
+        ratio = np.clip(radius_rows[row_of] / np.maximum(drawn[row_of], 0.5), 0.7, 1.3)
+        ratio[[0, -1]] = ratio[[1, -2]]
+        ratio = ndimage.gaussian_filter1d(ratio, _RATIO_SMOOTHING, mode="nearest")  # no ribs from pixel steps
+        body = Revolution(base, axis, heights, body.radii * ratio, pitch=float(pitch))
+    return body
+
+
+def _outline_mask(body: Revolution, camera: Camera, shape: tuple[int, int]) -> np.ndarray:
+    """(H, W) bool pixels the body covers: each pair of neighbouring rings' convex hull, filled."""
+    across, depthwise = body.frame()
+    angles = np.linspace(0.0, 2 * np.pi, _RING_VERTICES, endpoint=False)
+    ring = np.cos(angles)[:, None] * across + np.sin(angles)[:, None] * depthwise  # (V, 3)
+    points = body.base + body.heights[:, None, None] * body.axis + body.radii[:, None, None] * ring  # (S, V, 3)
+    uv = project(points, camera)
+    out = np.zeros(shape, np.uint8)
+    for k in range(len(uv) - 1):
+        hull = cv2.convexHull(np.concatenate([uv[k], uv[k + 1]]).astype(np.float32))
+        cv2.fillConvexPoly(out, np.rint(hull * 16).astype(np.int32), 1, cv2.LINE_8, shift=4)
+    return out.astype(bool)
+
+
+def _rim_edge(body: Revolution, camera: Camera, gradient: np.ndarray, interior: np.ndarray) -> float:
+    """Mean strength of the photo's edge across the near half of the body's top rim, where the rim lies on
+    ``interior`` pixels (0 where less than half of it does: a rim seen edge-on is the outline itself).
+
+    ``gradient`` (H, W, 2): the photo's x and y gradient; only its part across the rim counts, so a
+    straight edge the rim's ellipse happens to cross (a band of paint, a shading step) scores little.
+    """
+    across, depthwise = body.frame()
+    angles = np.linspace(0.0, np.pi, _RIM_SAMPLES)
+    near = -np.sign(depthwise[2]) if depthwise[2] != 0 else 1.0  # depthwise points away from or to the camera
+    ring = np.cos(angles)[:, None] * across + near * np.sin(angles)[:, None] * depthwise
+    uv = project(body.base + body.heights[-1] * body.axis + body.radii[-1] * ring, camera)
+    tangent = np.gradient(uv, axis=0)
+    normal = np.stack([-tangent[:, 1], tangent[:, 0]], axis=1) / np.maximum(
+        np.linalg.norm(tangent, axis=1, keepdims=True), 1e-9)
+    col, row = np.rint(uv[:, 0]).astype(int), np.rint(uv[:, 1]).astype(int)
+    on = (col >= 0) & (col < camera.width) & (row >= 0) & (row < camera.height)
+    on[on] = interior[row[on], col[on]]
+    if on.mean() < 0.5:
+        return 0.0
+    return float(np.abs((gradient[row[on], col[on]] * normal[on]).sum(axis=1)).mean())
+
+
+def fit_revolution(mask: np.ndarray, radius_rows: np.ndarray, column: float, tilt: float, camera: Camera,
+                   depth: float, image: np.ndarray) -> Revolution | None:
+    """The surface of revolution that explains the body's (H, W) bool ``mask`` and the photo, or None.
+
+    ``radius_rows`` (H,): the outline's half-width on each row about the mirror axis (column ``column`` at the
+    mask's centroid row, ``tilt`` columns per row); ``depth``: the axis' middle's distance from the camera;
+    ``image`` (H, W, 3|4) uint8: the photo. Under any pitch the profile can bend to fit the outline's ends (a
+    flat lid seen from above, or a dome seen level), so the outline only narrows the pitches down to those
+    within ``_IOU_TOLERANCE`` of the best; of those, the one whose top rim's near half runs along the
+    strongest edge inside the object (where a lid or an opening meets the side) is taken, or, when no rim
+    shows (no such edge ``_RIM_CONTRAST`` times the object's median gradient), the best outline's.
+    """
+    mask = np.asarray(mask, dtype=bool)
+    if not mask.any():
+        return None
+    row0 = float(np.nonzero(mask)[0].mean())
+    # Where a handle or a spout meets the body its chords break: a running median keeps such steps out of the
+    # profile (they would turn into ledges round the whole body).
+    rows = np.nonzero(radius_rows > 0)[0]
+    window = 2 * int(_PROFILE_MEDIAN * len(rows) / 2) + 1
+    radius_rows = radius_rows.copy()
+    radius_rows[rows[0]:rows[-1] + 1] = ndimage.median_filter(radius_rows[rows[0]:rows[-1] + 1], window,
+                                                              mode="nearest")
+    candidates = []
+    for pitch in _PITCHES:
+        body = _build(radius_rows, column, tilt, row0, float(pitch), camera, depth, mask.shape[1])
+        if body is not None:
+            drawn = _outline_mask(body, camera, mask.shape)
+            candidates.append((float((drawn & mask).sum() / max((drawn | mask).sum(), 1)), body))
+    if not candidates:
+        return None
+    best_iou = max(iou for iou, _ in candidates)
+    near = [(iou, body) for iou, body in candidates if iou >= best_iou - _IOU_TOLERANCE]
+    grey = cv2.GaussianBlur(cv2.cvtColor(np.ascontiguousarray(image[..., :3]), cv2.COLOR_RGB2GRAY).astype(np.float32),
+                            (0, 0), _EDGE_BLUR)
+    gradient = np.stack([cv2.Sobel(grey, cv2.CV_32F, 1, 0), cv2.Sobel(grey, cv2.CV_32F, 0, 1)], axis=-1)
+    interior = cv2.erode(mask.astype(np.uint8), np.ones((7, 7), np.uint8)).astype(bool)
+    typical = float(np.median(np.linalg.norm(gradient[interior], axis=1))) if interior.any() else 0.0
+    rims = [_rim_edge(body, camera, gradient, interior) for _, body in near]
+    if max(rims) > _RIM_CONTRAST * max(typical, 1.0):
+        iou, body = near[int(np.argmax(rims))]
+    else:
+        iou, body = max(near, key=lambda candidate: candidate[0])
+    return Revolution(body.base, body.axis, body.heights, body.radii, iou, body.pitch)
+
+
+class _Grid:
+    """Samples of one surface patch on a rectangular (n_a, n_b) grid: points, outward normals, in-plane axes."""
+
+    def __init__(self, points, normals, tangent_a, tangent_b, step_a, step_b):
+        self.points, self.normals = points, normals  # (n_a, n_b, 3) each
+        self.tangent_a, self.tangent_b = tangent_a, tangent_b  # (n_a, n_b, 3) unit
+        self.step_a, self.step_b = step_a, step_b  # (n_a, n_b) sample spacing along each
+
+
+def _side(body: Revolution, spacing: float) -> _Grid:
+    """The side on a grid of heights (every ``spacing`` along the profile) by angles (the widest ring's)."""
+    across, depthwise = body.frame()
+    length = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(body.heights), np.diff(body.radii)))])
+    n_a = max(2, int(np.ceil(length[-1] / spacing)))
+    n_b = max(8, int(np.ceil(2 * np.pi * body.radii.max() / spacing)))
+    at = (np.arange(n_a) + 0.5) / n_a * length[-1]
+    h = np.interp(at, length, body.heights)
+    r = np.interp(at, length, body.radii)
+    slope = np.gradient(r, h) if n_a > 2 else np.zeros(n_a)
+    angles = (np.arange(n_b) + 0.5) / n_b * 2 * np.pi
+    radial = np.cos(angles)[:, None] * across + np.sin(angles)[:, None] * depthwise  # (n_b, 3)
+    points = body.base + h[:, None, None] * body.axis + r[:, None, None] * radial[None]
+    along = body.axis + slope[:, None, None] * radial[None]
+    along /= np.linalg.norm(along, axis=-1, keepdims=True)
+    around = np.broadcast_to(np.cross(body.axis, radial)[None], points.shape)
+    normals = np.cross(along, around)
+    normals *= np.sign((normals * radial[None]).sum(-1, keepdims=True) + 1e-12)
+    step_a = np.broadcast_to((length[-1] / n_a) * np.ones((n_a, 1)), (n_a, n_b))
+    step_b = np.broadcast_to((2 * np.pi * np.maximum(r, 1e-9) / n_b)[:, None], (n_a, n_b))
+    return _Grid(points, normals, along, np.ascontiguousarray(around), step_a, step_b)
+
+
+def _disc(body: Revolution, spacing: float, top: bool) -> _Grid | None:
+    """An end disc on a square grid (cells outside the disc dropped later by their zero spacing)."""
+    radius = body.radii[-1] if top else body.radii[0]
+    if radius < spacing:
+        return None
+    across, depthwise = body.frame()
+    n = max(2, int(np.ceil(2 * radius / spacing)))
+    x = ((np.arange(n) + 0.5) / n * 2 - 1) * radius
+    centre = body.base + (body.heights[-1] if top else 0.0) * body.axis
+    points = centre + x[:, None, None] * across + x[None, :, None] * depthwise
+    inside = (x[:, None] ** 2 + x[None, :] ** 2) <= radius**2
+    normal = body.axis if top else -body.axis
+    step = np.where(inside, 2 * radius / n, 0.0)
+    shape = points.shape
+    return _Grid(points, np.broadcast_to(normal, shape), np.broadcast_to(across, shape),
+                 np.broadcast_to(depthwise, shape), step, step)
+
+
+def _shown(points: np.ndarray, normals: np.ndarray, camera: Camera, pixels: np.ndarray, zbuffer: np.ndarray,
+           slack: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(M,) whether each point (M, 3) shows in the photo on one of ``pixels`` (H, W) bool, its (M, 2) pixel
+    position, and its (M,) cosine to the camera."""
+    uv = project(points, camera)
+    cosine = -(normals * points).sum(-1) / np.maximum(np.linalg.norm(points, axis=-1), 1e-12)
+    col = np.clip(np.rint(uv[:, 0]).astype(int), 0, camera.width - 1)
+    row = np.clip(np.rint(uv[:, 1]).astype(int), 0, camera.height - 1)
+    shown = (cosine >= MIN_VIEW_COSINE) & pixels[row, col] & (points[:, 2] <= zbuffer[row, col] + slack)
+    return shown, uv, cosine
+
+
+def revolution_surfels(body: Revolution, image: np.ndarray, pixels: np.ndarray, camera: Camera, stride: int,
+                       opacity: float, radius_px: float) -> tuple[Gaussians, np.ndarray]:
+    """Flat Gaussians over the body's closed surface, coloured as the module says, in the camera's world frame.
+
+    ``pixels`` (H, W) bool: the photo's pixels that show the body (its mask less what stands in front, a
+    handle or a spout). Otherwise as :func:`~marionette.target.cuboid.cuboid_surfels`.
+    """
+    depth = float(np.linalg.norm(body.base + 0.5 * body.heights[-1] * body.axis))
+    area = 2 * np.pi * np.sum(0.5 * (body.radii[1:] + body.radii[:-1])
+                              * np.hypot(np.diff(body.heights), np.diff(body.radii)))
+    area += np.pi * (body.radii[0] ** 2 + body.radii[-1] ** 2)
+    spacing = sample_spacing(area, depth, camera, stride, int(pixels.sum()))
+    grids = [g for g in (_side(body, spacing), _disc(body, spacing, True), _disc(body, spacing, False))
+             if g is not None]
+    # A z-buffer of the surface at the photo's pixels: what lies behind it does not show.
+    every = np.concatenate([g.points.reshape(-1, 3) for g in grids])
+    uv = project(every, camera)
+    col = np.clip(np.rint(uv[:, 0]).astype(int), 0, camera.width - 1)
+    row = np.clip(np.rint(uv[:, 1]).astype(int), 0, camera.height - 1)
+    zbuffer = np.full((camera.height, camera.width), np.inf)
+    np.minimum.at(zbuffer, (row, col), every[:, 2])
+    holes = np.isinf(zbuffer)  # pixels between samples take their neighbours' nearest depth
+    zbuffer = np.where(holes, cv2.erode(np.where(holes, np.float32(3e38), zbuffer.astype(np.float32)),
+                                        np.ones((3, 3), np.uint8)), zbuffer)
+    texture = _Texture(image[..., :3], pixels, radius_px)
+    slack = _DEPTH_SLACK * spacing
+    # The mirror across the view: through the axis, its normal the view's direction square to the axis.
+    view = body.base + 0.5 * body.heights[-1] * body.axis
+    view = view - (view @ body.axis) * body.axis
+    view /= max(np.linalg.norm(view), 1e-12)
+    c2w = np.linalg.inv(camera.world_to_camera)
+    means, scales, quats, rgbs, pixel_of = [], [], [], [], []
+    side = None  # the side's colours (n_a, n_b, 3), once made: the source of an end no view shows
+    for grid in grids:  # the side first
+        shape = grid.points.shape[:2]
+        points, normals = grid.points.reshape(-1, 3), grid.normals.reshape(-1, 3)
+        offset = ((points - body.base) @ view)[:, None] * view
+        mirrored, mirrored_normals = points - 2 * offset, normals - 2 * (normals @ view)[:, None] * view
+        own, own_uv, own_cos = _shown(points, normals, camera, pixels, zbuffer, slack)
+        other, other_uv, other_cos = _shown(mirrored, mirrored_normals, camera, pixels, zbuffer, slack)
+        use_uv = np.where(own[:, None], own_uv, other_uv)
+        cosine = np.where(own, own_cos, other_cos)
+        colour = texture.sample(use_uv[:, 0], use_uv[:, 1], blur_level(cosine))
+        known = (own | other).reshape(shape)
+        rng = np.random.default_rng(0)
+        if known.any() or side is None:
+            colour = fill_unseen(colour.reshape(*shape, 3), known, rng)
+        else:  # an end no view shows (a bottom seen from above): the side's texture, quilted
+            colour = quilt(side, shape, rng)
+        if side is None:
+            side = colour
+        colour = colour.reshape(-1, 3)
+        keep = (grid.step_a > 0).ravel() & (grid.step_b > 0).ravel()
+        frame = np.stack([grid.tangent_a.reshape(-1, 3), grid.tangent_b.reshape(-1, 3), normals], axis=2)
+        flip = np.linalg.det(frame) < 0
+        frame[flip, :, 0] *= -1
+        width = np.stack([OVERLAP * grid.step_a.ravel(), OVERLAP * grid.step_b.ravel()], axis=1)
+        means.append(points[keep])
+        scales.append(np.concatenate([width, FLATNESS * width.min(axis=1, keepdims=True)], axis=1)[keep])
+        quats.append(matrix_to_quaternion(c2w[:3, :3] @ frame[keep]))
+        rgbs.append(colour[keep])
+        pixel_of.append(np.clip(np.rint(use_uv[keep]), 0, [camera.width - 1, camera.height - 1]))
+    means = np.concatenate(means) @ c2w[:3, :3].T + c2w[:3, 3]
+    gaussians = Gaussians.from_rgb(means, np.clip(np.concatenate(rgbs), 0.0, 1.0), np.concatenate(scales), opacity,
+                                   np.concatenate(quats))
+    return gaussians, np.concatenate(pixel_of).astype(np.int32)

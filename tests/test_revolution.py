@@ -1,0 +1,71 @@
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from marionette.camera import Camera
+from marionette.geometry import axis_angle_to_matrix, matrix_to_quaternion
+from marionette.render import render
+from marionette.target.lift import LiftOptions, lift_image
+
+
+def turned(gaussians, centre, axis_angle):
+    r = axis_angle_to_matrix(np.asarray(axis_angle, dtype=np.float64))
+    return gaussians.with_means((gaussians.means - centre) @ r.T + centre).turned(matrix_to_quaternion(r))
+
+
+def can_view(yaw, pitch, plain=False):
+    from marionette.synthetic import object_view
+
+    return object_view("cylinder", size=(256, 256), seed=0, yaw_deg=yaw, pitch_deg=pitch, plain=plain)
+
+
+@pytest.mark.parametrize("plain", [False, True])
+def test_a_can_seen_from_above_leans_as_the_photo_shows_and_turns_about_its_own_axis(plain):
+    pitch = 20.0
+    photo, camera, centre = can_view(30, pitch, plain)
+    lifted = lift_image(photo, camera=camera, options=LiftOptions(depth=float(centre[2])))
+    assert lifted.shape.name == "revolve" and lifted.shape.solid_iou > 0.95
+    assert lifted.shape.pitch == pytest.approx(pitch, abs=5.0)
+    sheets = lift_image(photo, camera=camera, options=LiftOptions(depth=float(centre[2]), solids=False))
+    up = axis_angle_to_matrix([np.radians(pitch), 0.0, 0.0]) @ np.array([0.0, 1.0, 0.0])
+    truth = can_view(120, pitch, plain)[0][..., 3] > 0
+
+    def iou(gaussians):
+        seen = render(turned(gaussians, centre, up * np.pi / 2), camera).alpha > 0.5
+        return (seen & truth).sum() / (seen | truth).sum()
+
+    # Measured 0.955 (both textures); the sheets about an axis in the image plane 0.83.
+    assert iou(lifted.gaussians) > 0.93
+    assert iou(lifted.gaussians) > iou(sheets.gaussians) + 0.05
+
+
+@pytest.mark.parametrize("axis_angle", [(0, np.pi / 2, 0), (0, np.pi, 0), (np.pi / 2, 0, 0), (0.7, 0.9, 0)])
+def test_a_solid_of_revolution_is_closed_from_every_side(axis_angle):
+    size = 96
+    img = np.zeros((size, size, 4), np.uint8)
+    yy, xx = np.mgrid[:size, :size]
+    inside = (xx - 47.5) ** 2 + (yy - 47.5) ** 2 < 28**2
+    img[inside] = (90, 160, 220, 255)
+    lifted = lift_image(img, camera=Camera.from_fov(size, size, 30.0))
+    assert lifted.shape.name == "revolve" and lifted.shape.solid_iou is not None
+    g = lifted.gaussians
+    alpha = render(turned(g, 0.5 * (g.means.min(axis=0) + g.means.max(axis=0)), axis_angle), lifted.camera).alpha
+    solid = alpha > 0.5
+    assert solid.sum() > 500
+    assert (ndimage.binary_fill_holes(solid) & ~solid).sum() == 0
+    assert alpha[ndimage.binary_erosion(solid, iterations=2)].min() > 0.97
+
+
+def test_hidden_surface_is_quilted_from_the_visible_side_not_streaked():
+    from marionette.target.synthesis import fill_unseen
+
+    rng = np.random.default_rng(0)
+    yy, xx = np.mgrid[:40, :60]
+    stripes = np.stack([(xx // 3 % 2) * 0.8 + 0.1, (yy // 5 % 2) * 0.5 + 0.2, np.full(xx.shape, 0.4)], -1)
+    known = xx < 30  # the right half unseen, its colours garbage
+    filled = fill_unseen(np.where(known[..., None], stripes, 7.0), known, rng)
+    assert np.array_equal(filled[known], stripes[known])
+    hidden = filled[:, 40:]  # away from the seam: the stripes both ways, in the known colours
+    assert hidden.min() >= 0.1 - 1e-9 and hidden.max() <= 0.9 + 1e-9
+    assert np.abs(np.diff(hidden[..., 0], axis=1)).mean() > 0.1  # varies across, as the vertical stripes do
+    assert np.abs(np.diff(hidden[..., 1], axis=0)).mean() > 0.03  # ... and down, as the horizontal ones do
