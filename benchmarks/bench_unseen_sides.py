@@ -11,7 +11,9 @@
 2. The independent box: a rich box tilted 25° towards the camera, from yaws 0, 20, 40, 60 (seeds 0-1),
    turned 0-90° about its vertical axis: the last third (60-90°), means of blurred PSNR and IoU.
 3. Lift time of a 512² box photo, median of ``--runs``.
-4. Photos the project was not tuned on: every image in ``../shared/data/images`` (skipped when absent)
+4. The demo (``marionette demo``): its result's frames where the extracted turn is nearest 0°, 45° and 90°,
+   ``docs/images/unseen_sides_demo_<label>.png``.
+5. Photos the project was not tuned on: every image in ``../shared/data/images`` (skipped when absent)
    lifted as ``transfer`` lifts it and turned 0°, 45°, 90° and 180° about the vertical through its centre,
    one sheet per run: ``docs/images/unseen_sides_photos_<label>.png``, to be judged by eye.
 
@@ -164,6 +166,26 @@ def photo_sheet(label: str) -> Path | None:
     return out
 
 
+def demo_sheet(label: str) -> Path:
+    """The demo's result at the frames turned nearest 0°, 45° and 90°: ``docs/images/unseen_sides_demo_<label>.png``."""
+    import tempfile
+
+    import cv2
+
+    from marionette.demo import run_demo
+    from marionette.io import read_prior, read_video
+
+    with tempfile.TemporaryDirectory() as folder:
+        paths = run_demo(folder)
+        poses = read_prior(paths["prior"]).poses[0]
+        frames = read_video(paths["result"]).frames
+    angles = np.degrees(np.arccos(np.clip((np.trace(poses[:, :3, :3], axis1=1, axis2=2) - 1) / 2, -1, 1)))
+    picks = [int(np.argmin(np.abs(angles - a))) for a in (0, 45, 90)]
+    out = IMAGES / f"unseen_sides_demo_{label}.png"
+    cv2.imwrite(str(out), cv2.cvtColor(np.concatenate([frames[i] for i in picks], axis=1), cv2.COLOR_RGB2BGR))
+    return out
+
+
 def table(rows: list[dict], turn: int, key: int) -> dict[tuple[str, str], float]:
     """{(object, texture): mean of score ``key`` (0 IoU, 1 PSNR) at ``turn``}."""
     out: dict[tuple[str, str], list] = {}
@@ -228,7 +250,10 @@ def report(after: dict, before: dict | None, label: str) -> str:
               + (" and [`docs/images/unseen_sides_before.png`](../images/unseen_sides_before.png)." if before else "."),
               "", f"The shared photos (0°, 45°, 90°, 180° about the vertical): "
               f"[`docs/images/unseen_sides_photos_{label}.png`](../images/unseen_sides_photos_{label}.png)"
-              + (" and [before](../images/unseen_sides_photos_before.png)." if before else "."), ""]
+              + (" and [before](../images/unseen_sides_photos_before.png)." if before else "."), "",
+              "The demo's result turned 0°, 45° and 90°: "
+              f"[`docs/images/unseen_sides_demo_{label}.png`](../images/unseen_sides_demo_{label}.png)"
+              + (" and [before](../images/unseen_sides_demo_before.png)." if before else "."), ""]
     return "\n".join(lines)
 
 
@@ -247,6 +272,7 @@ def main() -> None:
     rows, sheet = per_shape(args.seeds)
     run = {"rows": rows, "independent": independent_box(), "lift_s": lift_time(args.runs)}
     photo_sheet(args.label)
+    demo_sheet(args.label)
     IMAGES.mkdir(parents=True, exist_ok=True)
     small = cv2.resize(sheet, (sheet.shape[1] // 2, sheet.shape[0] // 2), interpolation=cv2.INTER_AREA)
     cv2.imwrite(str(IMAGES / f"unseen_sides_{args.label}.png"), cv2.cvtColor(small, cv2.COLOR_RGB2BGR))
