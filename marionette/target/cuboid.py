@@ -43,6 +43,12 @@ _MIN_TOLERANCE = 2.0
 MIN_BOX_IOU = 0.93
 # Points along the projected outline and along the mask's outline in the fit's residuals.
 _OUTLINE_SAMPLES = 128
+# Generic starting views of a box's fit (yaw, pitch degrees), and how much better (IoU) a later start's box
+# must cover the mask to replace the outline's own reading.
+_GENERIC_VIEWS = ((0.0, 0.0), (0.0, 25.0), (30.0, 0.0), (30.0, 25.0), (60.0, 0.0), (60.0, 25.0))
+_BETTER_START = 0.005
+# A box covering the mask this well ends the search.
+_GOOD_FIT = 0.98
 # Finite-difference steps of the fit's parameters: turn (rad), log half-lengths, centre (px).
 _STEPS = (1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 0.05, 0.05)
 # Robust scale of the outline residuals (pixels): what sticks out of the box (a handle) does not pull it.
@@ -200,18 +206,32 @@ def _iou(a: np.ndarray, b: np.ndarray) -> float:
     return float((a & b).sum() / max((a | b).sum(), 1))
 
 
+def _starts(mask: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(axes (3, 3) rows, half-lengths (3,) pixels) to start a box's fit from: the outline's orthographic
+    reading when it has one, then boxes turned 0-60° and seen level or from above, as large as the outline
+    (a box seen square on, or under strong perspective, is not read right orthographically)."""
+    starts = []
+    read = box_outline_edges(mask)
+    if read is not None:
+        starts.append(read)
+    x, y, w, h = cv2.boundingRect(mask.astype(np.uint8))
+    for yaw, pitch in _GENERIC_VIEWS:
+        turn = axis_angle_to_matrix([np.radians(pitch), 0.0, 0.0]) @ axis_angle_to_matrix([0.0, np.radians(yaw), 0.0])
+        starts.append((turn.T, np.array([0.35 * w, 0.4 * h, 0.3 * w])))
+    return starts
+
+
 def fit_cuboid(mask: np.ndarray, camera: Camera, depth: float) -> Cuboid | None:
     """The box whose projection covers the (H, W) bool mask, its centre ``depth`` away; None if none is seen.
 
-    Starts from the outline read orthographically (:func:`box_outline_edges`), then fits its turn, size and
-    place across the image in the perspective camera: the projected outline onto the mask's (robust least
-    squares of the distances both ways). The result's ``iou`` says how well it covers the mask.
+    From each of a few starts (:func:`_starts`), fits its turn, size and place across the image in the
+    perspective camera: the projected outline onto the mask's (robust least squares of the distances both
+    ways); the one that covers the mask best is kept (the first that covers ``_GOOD_FIT`` of it ends the
+    search). Its ``iou`` says how well; None when the outline is not a box's (4 or 6 corners).
     """
     mask = np.asarray(mask, dtype=bool)
-    start = box_outline_edges(mask)
-    if start is None:
+    if box_outline(mask) is None:
         return None
-    axes0, half_px = start
     f = 0.5 * (camera.fx + camera.fy)
     v, u = np.nonzero(mask)
     centre_px = np.array([u.mean(), v.mean()])
@@ -219,30 +239,38 @@ def fit_cuboid(mask: np.ndarray, camera: Camera, depth: float) -> Cuboid | None:
     outline = outline[np.linspace(0, len(outline) - 1, min(len(outline), _OUTLINE_SAMPLES)).astype(int)]
     inside = ndimage.distance_transform_edt(mask)
     signed = ndimage.distance_transform_edt(~mask) - np.maximum(inside - 1.0, 0.0)  # 0 on the outline's pixels
+    best = None
+    for axes0, half_px in _starts(mask):
 
-    def box(x: np.ndarray) -> Cuboid:
-        axes = axis_angle_to_matrix(x[:3]) @ axes0.T
-        at = centre_px + x[6:8]
-        centre = np.array([(at[0] - camera.cx) / camera.fx, (at[1] - camera.cy) / camera.fy, 1.0]) * depth
-        return Cuboid(centre, axes.T, half_px * np.exp(x[3:6]) * depth / f)
+        def box(x: np.ndarray) -> Cuboid:
+            axes = axis_angle_to_matrix(x[:3]) @ axes0.T
+            at = centre_px + x[6:8]
+            centre = np.array([(at[0] - camera.cx) / camera.fx, (at[1] - camera.cy) / camera.fy, 1.0]) * depth
+            return Cuboid(centre, axes.T, half_px * np.exp(x[3:6]) * depth / f)
 
-    def residuals(x: np.ndarray) -> np.ndarray:
-        hull = _hull(box(x), camera)
-        on_hull = _along(hull, _OUTLINE_SAMPLES)
-        from_hull = ndimage.map_coordinates(signed, [on_hull[:, 1], on_hull[:, 0]], order=1, mode="nearest")
-        return np.concatenate([from_hull, _distance_to_polygon(outline, hull)])
+        def residuals(x: np.ndarray) -> np.ndarray:
+            hull = _hull(box(x), camera)
+            on_hull = _along(hull, _OUTLINE_SAMPLES)
+            from_hull = ndimage.map_coordinates(signed, [on_hull[:, 1], on_hull[:, 0]], order=1, mode="nearest")
+            return np.concatenate([from_hull, _distance_to_polygon(outline, hull)])
 
-    def jacobian(x: np.ndarray) -> np.ndarray:  # central differences of fixed size: rel. steps vanish at x = 0
-        columns = []
-        for k, step in enumerate(_STEPS):
-            dx = np.zeros_like(x)
-            dx[k] = step
-            columns.append((residuals(x + dx) - residuals(x - dx)) / (2 * step))
-        return np.stack(columns, axis=1)
+        def jacobian(x: np.ndarray) -> np.ndarray:  # central differences of fixed size: rel. steps vanish at x = 0
+            columns = []
+            for k, step in enumerate(_STEPS):
+                dx = np.zeros_like(x)
+                dx[k] = step
+                columns.append((residuals(x + dx) - residuals(x - dx)) / (2 * step))
+            return np.stack(columns, axis=1)
 
-    fit = least_squares(residuals, np.zeros(8), jac=jacobian, loss="soft_l1", f_scale=_ROBUST_PX, max_nfev=100)
-    best = box(fit.x)
-    return Cuboid(best.centre, best.axes, best.half, _iou(_fill(_hull(best, camera), mask.shape), mask))
+        fit = least_squares(residuals, np.zeros(8), jac=jacobian, loss="soft_l1", f_scale=_ROBUST_PX,
+                            max_nfev=100)
+        found = box(fit.x)
+        found = Cuboid(found.centre, found.axes, found.half, _iou(_fill(_hull(found, camera), mask.shape), mask))
+        if best is None or found.iou > best.iou + _BETTER_START:
+            best = found
+        if best.iou >= _GOOD_FIT:  # the outline's own reading fits: no need to look further
+            break
+    return best
 
 
 def _faces(cuboid: Cuboid) -> list[tuple[int, float, np.ndarray]]:

@@ -220,31 +220,34 @@ def _focal_for_relative_depth(mask: np.ndarray, relief: np.ndarray, ratio: float
 
 
 def _solid(choice: ShapeChoice, image: np.ndarray, mask: np.ndarray, camera: Camera, depth: float,
-           options: LiftOptions) -> tuple[Gaussians, np.ndarray, ShapeChoice, np.ndarray] | None:
-    """The object rebuilt as a box or a solid of revolution: (Gaussians, their pixels (N, 2), the choice with
-    the fit's measurements, (H, W) bool pixels left to sheets); None where the prior is a sheet's or the solid
-    does not cover the mask well enough (then the choice falls back to sheets)."""
+           options: LiftOptions) -> tuple[ShapeChoice, tuple[Gaussians, np.ndarray, np.ndarray] | None]:
+    """The object rebuilt as a box or a solid of revolution.
+
+    Returns the choice with the fit's measurements (a ``cuboid`` no box covers well enough becomes its
+    fallback, which may be a solid of revolution), and the solid, or None for sheets: (Gaussians, their
+    pixels (N, 2), (H, W) bool pixels left to sheets: a handle, a spout).
+    """
     radius_px = pixel_radius(mask)
     if choice.name == "cuboid":
         box = fit_cuboid(mask, camera, depth)
-        if box is None or (box.iou < MIN_BOX_IOU and not choice.forced):
-            if choice.forced:
-                raise InputError("--shape cuboid: the target's outline shows no box (neither a box's hexagon nor "
-                                 "a rectangle)")
-            return None
-        depthwise = np.argmax(np.abs(box.axes[:, 2])) == np.arange(3)
-        box = replace(box, half=box.half * np.where(depthwise, options.thickness, 1.0))
-        gaussians, pixel_of = cuboid_surfels(box, image, mask, camera, options.stride, options.opacity, radius_px)
-        return gaussians, pixel_of, replace(choice, solid_iou=box.iou), np.zeros(mask.shape, bool)
+        if box is not None and (box.iou >= MIN_BOX_IOU or choice.forced):
+            depthwise = np.argmax(np.abs(box.axes[:, 2])) == np.arange(3)
+            box = replace(box, half=box.half * np.where(depthwise, options.thickness, 1.0))
+            gaussians, pixel_of = cuboid_surfels(box, image, mask, camera, options.stride, options.opacity,
+                                                 radius_px)
+            return replace(choice, solid_iou=box.iou), (gaussians, pixel_of, np.zeros(mask.shape, bool))
+        if choice.forced:
+            raise InputError("--shape cuboid: the target's outline shows no box (neither a box's hexagon nor a "
+                             "rectangle)")
+        choice = replace(choice, name=choice.fallback, solid_iou=None if box is None else box.iou)
     if choice.name == "revolve" and options.thickness == 1.0:
         radius, _, pieces = revolve_profile(mask, *choice.axis)
         body = fit_revolution(pieces == 1, radius, *choice.axis, camera, depth, image)
-        if body is None or body.iou < MIN_REVOLUTION_IOU:
-            return None
-        gaussians, pixel_of = revolution_surfels(body, image, pieces == 1, camera, options.stride, options.opacity,
-                                                 radius_px)
-        return gaussians, pixel_of, replace(choice, solid_iou=body.iou, pitch=body.pitch), pieces >= 2
-    return None
+        if body is not None and body.iou >= MIN_REVOLUTION_IOU:
+            gaussians, pixel_of = revolution_surfels(body, image, pieces == 1, camera, options.stride,
+                                                     options.opacity, radius_px)
+            return replace(choice, solid_iou=body.iou, pitch=body.pitch), (gaussians, pixel_of, pieces >= 2)
+    return choice, None
 
 
 def lift_image(image: np.ndarray, *, mask: np.ndarray | None = None, camera: Camera | None = None,
@@ -274,7 +277,10 @@ def lift_image(image: np.ndarray, *, mask: np.ndarray | None = None, camera: Cam
     if not mask.any():
         raise InputError("target mask is empty")
     choice = choose_shape(mask, options.shape)
-    offset, relief, pieces = shape_depth(mask, choice)  # (H, W) mid-surface offset, half-thickness (px), pieces
+    if choice.name == "cuboid" and (not options.solids or depth_map is not None):
+        choice = replace(choice, name=choice.fallback)
+    sheets = replace(choice, name=choice.fallback) if choice.name == "cuboid" else choice
+    offset, relief, pieces = shape_depth(mask, sheets)  # (H, W) mid-surface offset, half-thickness (px), pieces
     offset, relief = offset * options.thickness, relief * options.thickness
     if camera is None and options.relative_depth is not None:
         if not (np.isfinite(options.relative_depth) and options.relative_depth > 0):
@@ -294,9 +300,9 @@ def lift_image(image: np.ndarray, *, mask: np.ndarray | None = None, camera: Cam
     s = options.stride
     centre_v, centre_u = np.arange(s // 2, h_img, s), np.arange(s // 2, w_img, s)
     if options.solids and depth_map is None:
-        solid = _solid(choice, image, mask, camera, z0, options)
+        choice, solid = _solid(choice, image, mask, camera, z0, options)
         if solid is not None:
-            gaussians, pixel_of, choice, appendages = solid
+            gaussians, pixel_of, appendages = solid
             if appendages.any():  # a handle or a spout: sheets of its own
                 cells = np.where(appendages, pieces, 0)[np.ix_(centre_v, centre_u)]
                 more, more_pixels = sample_surface(image, mask, cells, mid[np.ix_(centre_v, centre_u)],
@@ -306,8 +312,6 @@ def lift_image(image: np.ndarray, *, mask: np.ndarray | None = None, camera: Cam
                 pixel_of = np.concatenate([pixel_of, more_pixels])
             gaussians, _ = polish_reference(gaussians, camera, image, mask, options.polish)
             return LiftedTarget(gaussians, camera, mask, pixel_of, choice, image)
-    if choice.name == "cuboid":
-        choice = replace(choice, name="extrude")  # sheets over the outline
     cells = pieces[np.ix_(centre_v, centre_u)]
     gaussians, pixel_of = sample_surface(image, mask, cells, mid[np.ix_(centre_v, centre_u)],
                                          half[np.ix_(centre_v, centre_u)], camera, s, options.opacity,

@@ -46,7 +46,7 @@ from scipy import ndimage, sparse
 from scipy.sparse.linalg import spsolve
 
 from ..errors import InputError
-from .cuboid import box_edges, box_outline, box_outline_edges
+from .cuboid import box_edges, box_outline
 
 __all__ = ["SHAPES", "ShapeChoice", "ShapeDepth", "choose_shape", "shape_depth", "inflate_silhouette",
            "revolve_profile"]
@@ -102,6 +102,9 @@ class ShapeChoice:
         mask (IoU of its outline); None when none was built (sheets).
     pitch : float or None
         Degrees a solid of revolution's axis leans towards the camera.
+    fallback : str
+        The sheets' prior a ``cuboid`` falls back to when no box covers the
+        mask well enough.
     """
 
     name: str
@@ -113,6 +116,7 @@ class ShapeChoice:
     axis: tuple[float, float]
     solid_iou: float | None = None
     pitch: float | None = None
+    fallback: str = "extrude"
 
     def describe(self) -> str:
         """One line for ``--verbose``."""
@@ -202,19 +206,17 @@ def choose_shape(mask: np.ndarray, shape: str = "auto") -> ShapeChoice:
         raise InputError("target mask is empty")
     iou, corners, solidity, straight = _polygon_fit(mask)
     column, tilt, symmetry = _mirror_axis(mask)
-    polygonal = straight and corners <= _MAX_CORNERS and iou >= _MIN_POLYGON_IOU and solidity >= _MIN_SOLIDITY
-    if shape != "auto":
-        name = shape
-    elif polygonal:
-        name = "cuboid" if box_outline_edges(mask) is not None else "extrude"
-    elif symmetry >= _MIN_SYMMETRY:
-        name = "revolve"
-    else:
-        name = "inflate"
+    filled = iou >= _MIN_POLYGON_IOU and solidity >= _MIN_SOLIDITY
+    polygonal = straight and corners <= _MAX_CORNERS and filled
+    # A box's outline has 4 or 6 corners (perspective may bow its sides past the straightness test; a small
+    # box's pixel steps may add corners at the finest tolerance, but then its sides are straight).
+    box_like = filled and (corners <= 6 or polygonal) and box_outline(mask) is not None
+    sheets = "extrude" if polygonal else "revolve" if symmetry >= _MIN_SYMMETRY else "inflate"
+    name = shape if shape != "auto" else "cuboid" if box_like else sheets
     confidence = {"extrude": iou, "cuboid": iou, "revolve": symmetry,
                   "inflate": 1.0 - max(iou if polygonal else 0.0, symmetry)}[name]
     return ShapeChoice(name, shape != "auto", float(np.clip(confidence, 0.0, 1.0)), iou, int(corners), symmetry,
-                       (column, tilt))
+                       (column, tilt), fallback=sheets if shape == "auto" else "extrude")
 
 
 def inflate_silhouette(mask: np.ndarray) -> np.ndarray:
