@@ -49,6 +49,9 @@ _GENERIC_VIEWS = ((0.0, 0.0), (0.0, 25.0), (30.0, 0.0), (30.0, 25.0), (60.0, 0.0
 _BETTER_START = 0.005
 # A box covering the mask this well ends the search.
 _GOOD_FIT = 0.98
+# Pull (pixels per unit of log size) of each half-length towards its start: an edge the outline cannot
+# measure (a thin bar's depth seen square on) keeps the start's guess instead of drifting to nothing.
+_SIZE_PRIOR = 3.0
 # Finite-difference steps of the fit's parameters: turn (rad), log half-lengths, centre (px).
 _STEPS = (1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 0.05, 0.05)
 # Robust scale of the outline residuals (pixels): what sticks out of the box (a handle) does not pull it.
@@ -252,7 +255,7 @@ def fit_cuboid(mask: np.ndarray, camera: Camera, depth: float) -> Cuboid | None:
             hull = _hull(box(x), camera)
             on_hull = _along(hull, _OUTLINE_SAMPLES)
             from_hull = ndimage.map_coordinates(signed, [on_hull[:, 1], on_hull[:, 0]], order=1, mode="nearest")
-            return np.concatenate([from_hull, _distance_to_polygon(outline, hull)])
+            return np.concatenate([from_hull, _distance_to_polygon(outline, hull), _SIZE_PRIOR * x[3:6]])
 
         def jacobian(x: np.ndarray) -> np.ndarray:  # central differences of fixed size: rel. steps vanish at x = 0
             columns = []
