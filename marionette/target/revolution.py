@@ -6,8 +6,10 @@ about its own axis then swings out of its outline. Here the axis leans out of
 the image plane by the angle the outline's ends show: under a pitch ``p`` a
 ring of radius ``r`` projects to an ellipse ``r sin p`` tall, so the ends of the
 outline are half ellipses and the profile read between them is shortened by
-``cos p``. The pitch is the one whose rebuilt body covers the mask best
-(:func:`fit_revolution`, seen from above, as photos of such things are).
+``cos p``. Any pitch's profile can bend to fit the outline, so among those
+that fit it about equally well the one whose top rim runs along an edge of
+the photo is taken, else the best fit (:func:`fit_revolution`; seen from
+above, as photos of such things are).
 
 The closed surface (side and both end discs) is sampled on grids of flat
 Gaussians (:func:`revolution_surfels`) coloured, like a box's faces
@@ -21,6 +23,7 @@ is not filled with the handle.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -221,13 +224,19 @@ def fit_revolution(mask: np.ndarray, radius_rows: np.ndarray, column: float, til
     return Revolution(body.base, body.axis, body.heights, body.radii, iou, body.pitch)
 
 
-class _Grid:
-    """Samples of one surface patch on a rectangular (n_a, n_b) grid: points, outward normals, in-plane axes."""
+class _Grid(NamedTuple):
+    """Samples of one surface patch on a rectangular (n_a, n_b) grid.
 
-    def __init__(self, points, normals, tangent_a, tangent_b, step_a, step_b):
-        self.points, self.normals = points, normals  # (n_a, n_b, 3) each
-        self.tangent_a, self.tangent_b = tangent_a, tangent_b  # (n_a, n_b, 3) unit
-        self.step_a, self.step_b = step_a, step_b  # (n_a, n_b) sample spacing along each
+    points, normals (outward), tangent_a, tangent_b (unit, in the surface): (n_a, n_b, 3) each.
+    step_a, step_b: (n_a, n_b) sample spacing along each tangent (0: no sample, off an end disc).
+    """
+
+    points: np.ndarray
+    normals: np.ndarray
+    tangent_a: np.ndarray
+    tangent_b: np.ndarray
+    step_a: np.ndarray
+    step_b: np.ndarray
 
 
 def _side(body: Revolution, spacing: float) -> _Grid:
