@@ -344,3 +344,13 @@ def test_render_object_image_bad_arguments():
         render_object_image("teapot")
     with pytest.raises(InputError):
         render_object_image("box", size=(0, 10))
+
+
+def test_the_car_is_mirror_symmetric_about_its_long_mid_plane():
+    # Mirroring the car across its mid-plane (z -> -z) and the image across its vertical (x -> -x) is a half
+    # turn: the silhouette at yaw φ is the one at 180° - φ flipped left to right.
+    for yaw, pitch in ((30, 0), (60, 20)):
+        a = object_view("car", size=(128, 128), seed=3, yaw_deg=yaw, pitch_deg=pitch)[0][..., 3] > 0
+        b = object_view("car", size=(128, 128), seed=3, yaw_deg=180 - yaw, pitch_deg=pitch)[0][..., 3] > 0
+        assert (a ^ b[:, ::-1]).sum() < 0.01 * a.sum()
+        assert (a ^ a[:, ::-1]).sum() > 0.1 * a.sum()  # not symmetric in the image itself

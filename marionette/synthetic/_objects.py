@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..geometry import axis_angle_to_matrix, make_transform
 from ._textures import TEXELS_PER_UNIT, face_texture
 
 #: Spacing in world units of the surface samples returned as ``part_points``.
@@ -216,6 +217,30 @@ def make_vase(geom: np.random.Generator, tex: np.random.Generator, target: bool 
     profile = np.maximum(profile, 0.6 * neck)
     heights = np.linspace(-height / 2, height / 2, slabs + 1)
     return Shape((_revolved(profile, heights, _hues(tex, 3, target), tex, target, facets),))
+
+
+def make_car(geom: np.random.Generator, tex: np.random.Generator, target: bool = True) -> Shape:
+    """A car-like shape, mirror-symmetric about its long vertical mid-plane: a body, a cabin set back on it and
+    four wheels, about 2 units long; its front towards -x."""
+    length, width, body = geom.uniform(1.8, 2.1), geom.uniform(0.8, 0.95), geom.uniform(0.4, 0.5)
+    cabin_length, cabin = geom.uniform(0.9, 1.1), geom.uniform(0.35, 0.42)
+    wheel, tyre = geom.uniform(0.2, 0.24), 0.12
+    hues = _hues(tex, 12, target)
+    # y points down: the body's underside sits a wheel's radius above the ground, the cabin on the body.
+    floor = 0.5 * (body + cabin) - 0.5 * wheel  # centres the whole car on the origin, roughly
+    body_faces = _box_faces([0.0, floor - 0.5 * body, 0.0], 0.5 * np.array([length, body, width]), hues[:6], tex,
+                            target)
+    cabin_faces = _box_faces([0.15 * length, floor - body - 0.5 * cabin, 0.0],
+                             0.5 * np.array([cabin_length, cabin, 0.9 * width]), hues[6:], tex, target)
+    wheel_faces = _revolved(np.array([wheel]), np.array([-0.5 * tyre, 0.5 * tyre]), np.full(3, 0.6), tex,
+                            target, 24)
+    lay = make_transform(axis_angle_to_matrix([np.pi / 2, 0.0, 0.0]), np.zeros(3))  # its axis across the car
+    wheels = []
+    for x in (-0.32 * length, 0.32 * length):
+        for z in (-0.5 * width, 0.5 * width):
+            at = make_transform(np.eye(3), [x, floor, z]) @ lay
+            wheels += [face.transformed(at) for face in wheel_faces]
+    return Shape((body_faces + cabin_faces + tuple(wheels),))
 
 
 def make_rod(geom: np.random.Generator, tex: np.random.Generator, target: bool = True) -> Shape:

@@ -12,14 +12,14 @@ from ..errors import InputError
 from ..geometry import axis_angle_to_matrix, invert_transform, make_transform
 from ..prior import SpatPrior
 from ._motions import plan_camera, plan_motion
-from ._objects import Shape, make_box, make_cylinder, make_hinged_box, make_rod, make_vase
+from ._objects import Shape, make_box, make_car, make_cylinder, make_hinged_box, make_rod, make_vase
 from ._render import pixel_depth, render_shape, resolve, view_background
 from ._textures import background_texture
 
 MOTIONS = ("translation", "inplane", "outofplane", "oscillation", "hinge")
 OBJECTS = ("box", "hinge")
 #: Objects ``render_object_image`` can draw.
-TARGET_OBJECTS = ("box", "hinge", "cylinder", "vase", "rod")
+TARGET_OBJECTS = ("box", "hinge", "cylinder", "vase", "rod", "car")
 BACKGROUNDS = ("textured", "plain")
 CAMERA_MOTIONS = ("static", "pan", "handheld")
 
@@ -30,7 +30,7 @@ _PLAIN_BACKGROUND = np.array([0.86, 0.86, 0.84], np.float32)
 #: far enough that a moving camera sees it turn almost like a rotation homography.
 _BACKGROUND_DEPTH = 10.0
 _BUILDERS = {"box": make_box, "hinge": make_hinged_box, "cylinder": make_cylinder, "vase": make_vase,
-             "rod": make_rod}
+             "rod": make_rod, "car": make_car}
 
 
 @dataclass(frozen=True)
@@ -284,7 +284,8 @@ def render_object_image(object: str = "box", *, size: tuple[int, int] = (256, 25
     """An RGBA still (H, W, 4) uint8 of a synthetic object, for use as a target image.
 
     The object (``"box"``, ``"hinge"``, ``"cylinder"`` (a squat can), ``"vase"``
-    (a surface of revolution) or ``"rod"`` (a thin bar)) gets warm colours and
+    (a surface of revolution), ``"rod"`` (a thin bar) or ``"car"`` (a car-like
+    shape, mirror-symmetric about its long mid-plane)) gets warm colours and
     a checker of colour cells, so it looks unlike ``make_scene``'s objects. It
     is centred, turned by ``yaw_deg`` about its vertical axis and tilted
     ``pitch_deg`` towards the camera (60° horizontal field of view); its
