@@ -14,7 +14,7 @@ FLATNESS = 0.2
 MIN_VIEW_COSINE = 0.08
 # Surface samples per object pixel of the photo at most (a solid shows about half its surface).
 _SAMPLES_PER_PIXEL = 3.0
-# Blur level (of :class:`~.surfels._Texture`) a surface's colours are read at, by its cosine to the camera:
+# Blur level (of :class:`~.surfels.MaskedTexture`) a surface's colours are read at, by its cosine to the camera:
 # a slanted surface holds less detail per unit of area, and the photo's pixel grid must not print as stripes.
 _BLUR_BY_COSINE = ((0.5, 0), (0.25, 1), (0.0, 2))
 

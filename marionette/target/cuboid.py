@@ -3,7 +3,7 @@
 A lift of sheets over the silhouette (:mod:`.shapes`, :mod:`.surfels`) has to
 guess the hidden side of every pixel; a box needs no guess. Its outline (a
 hexagon seen from above or below, a rectangle seen square on) gives its three
-edges (:func:`box_edges`), refined in the photo's perspective camera until the
+edges (:func:`~.shapes.box_edges`), refined in the photo's perspective camera until the
 projected box covers the mask (:func:`fit_cuboid`). Each face is then sampled
 on its own grid of flat Gaussians (:func:`cuboid_surfels`), coloured:
 
@@ -31,14 +31,12 @@ from ..camera import Camera
 from ..gaussians import Gaussians
 from ..geometry import axis_angle_to_matrix, matrix_to_quaternion
 from ._solid import FLATNESS, MIN_VIEW_COSINE, OVERLAP, blur_level, project, sample_spacing
-from .surfels import _Texture
+from .shapes import box_outline, box_outline_edges, largest_outline
+from .surfels import MaskedTexture
 from .synthesis import quilt
 
-__all__ = ["Cuboid", "box_outline", "box_edges", "box_outline_edges", "fit_cuboid", "cuboid_surfels", "MIN_BOX_IOU"]
+__all__ = ["Cuboid", "fit_cuboid", "cuboid_surfels", "MIN_BOX_IOU"]
 
-# A polygon approximates the outline within this share of sqrt(area) (the shape priors' tolerance).
-_TOLERANCE = 0.025
-_MIN_TOLERANCE = 2.0
 # The fitted box must cover the mask this well (IoU of its projection) to be taken for a box.
 MIN_BOX_IOU = 0.93
 # Points along the projected outline and along the mask's outline in the fit's residuals.
@@ -83,99 +81,6 @@ class Cuboid:
         return self.centre + (signs * self.half) @ self.axes
 
 
-def _tolerance(mask: np.ndarray) -> float:
-    return max(_TOLERANCE * np.sqrt(mask.sum()), _MIN_TOLERANCE)
-
-
-def _outline(mask: np.ndarray) -> np.ndarray:
-    """(K, 2) float outline of the (H, W) mask's largest component."""
-    contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    return max(contours, key=cv2.contourArea)[:, 0].astype(np.float64)
-
-
-def box_outline(mask: np.ndarray) -> np.ndarray | None:
-    """The corners (6, 2) or (4, 2) of a box's outline in the (H, W) bool mask, pixels; None if it has neither."""
-    outline = _outline(mask).astype(np.int32)[:, None]
-    tolerance = _tolerance(mask)
-    for scale in (1.0, 1.5, 2.0):  # a small box's pixel steps may add a corner at the finest tolerance
-        polygon = cv2.approxPolyDP(outline, scale * tolerance, True)
-        if len(polygon) <= 6:
-            break
-    return polygon[:, 0].astype(np.float64) if len(polygon) in (4, 6) else None
-
-
-def box_edges(corners: np.ndarray) -> np.ndarray | None:
-    """A box's three edges in 3D (3, 3), pixel units (orthographic), from its hexagonal outline (6, 2), or None.
-
-    The outline's two most vertical sides are the box's outer vertical edge ``c``; the others form a top
-    and a bottom chain of two sides each, left to right. Seen from above or below, the bottom chain runs
-    the top's sides in the other order (the outline of a box is then the hexagon ``a, b, c, -a, -b, -c``),
-    and orthogonal edges fix the depths: ``a_z b_z = -a·b`` and the two alike, so
-    ``a_z² = -(a·b)(a·c)/(b·c)``; of its two mirror readings the one showing the upper face is taken. Seen
-    level, both chains run alike (perspective bends them at the near vertical edge), ``c`` is
-    perpendicular to ``a`` and ``b`` and the products are 0/0: then ``c_z = 0`` and the two faces beside
-    the near edge turn away from it equally, ``-a_z = b_z = sqrt(a·b)``.
-    """
-    sides = np.roll(corners, -1, axis=0) - corners  # (6, 2), side k from corner k to k + 1
-    steep = np.abs(sides[:, 1]) / np.maximum(np.linalg.norm(sides, axis=1), 1e-9)
-    first = int(np.argmax(steep[:3] + steep[3:]))  # the pair k, k + 3 of most vertical opposite sides
-    if min(steep[first], steep[first + 3]) < 0.7:
-        return None
-    order = np.roll(np.arange(6), -first)  # sides: vertical, chain, chain, vertical, chain, chain
-    chains = [sides[order[1:3]], sides[order[4:6]]]
-    # Left to right (a chain walked right to left is reversed and negated); the top one's middle corner is higher.
-    chains = [ch if ch[:, 0].sum() > 0 else -ch[::-1] for ch in chains]
-    top, bottom = chains if corners[order[2], 1] < corners[order[5], 1] else chains[::-1]
-    down = [side if side[1] >= 0 else -side for side in (sides[order[0]], sides[order[3]])]
-    vertical = 0.5 * (down[0] + down[1])
-    # Which side of the bottom chain is which of the top's: the same edge projects to about the same length.
-    length = lambda u, v: abs(np.log(np.linalg.norm(u) / max(np.linalg.norm(v), 1e-9)))  # noqa: E731
-    same = length(top[0], bottom[0]) + length(top[1], bottom[1])
-    swapped = length(top[0], bottom[1]) + length(top[1], bottom[0])
-    if swapped < same + 0.1:  # seen from above or below (or alike either way: try that first)
-        a, b, c = 0.5 * (top[0] + bottom[1]), 0.5 * (top[1] + bottom[0]), vertical
-        ab, ac, bc = a @ b, a @ c, b @ c
-        if min(abs(ab), abs(ac), abs(bc)) > 1e-9 and -ab * ac / bc > 0:
-            a_z = np.sqrt(-ab * ac / bc)
-            edges = np.array([[*a, a_z], [*b, -ab / a_z], [*c, -ac / a_z]])
-            normals = edges / np.linalg.norm(edges, axis=1, keepdims=True)
-            upper = normals[np.argmax(np.abs(normals[:, 1]))]
-            if upper[1] * upper[2] < 0:  # the face toward the image's top faces the camera (y down, z away)
-                edges[:, 2] *= -1
-            return edges
-    a, b = 0.5 * (top[0] + bottom[0]), 0.5 * (top[1] + bottom[1])
-    if a @ b <= 0:
-        return None
-    depth = np.sqrt(a @ b)
-    return np.array([[*a, -depth], [*b, depth], [*vertical, 0.0]])
-
-
-def box_outline_edges(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """(axes (3, 3) rows, half-lengths (3,) in pixels) of the box the (H, W) bool mask's outline shows, or None.
-
-    Read orthographically: a hexagon by :func:`box_edges`; a rectangle as a box seen square on, as deep as
-    its shorter side (what an extrusion assumes).
-    """
-    corners = box_outline(mask)
-    if corners is None:
-        return None
-    if len(corners) == 6:
-        edges = box_edges(corners)
-        if edges is None:
-            return None
-    else:  # seen square on: the rectangle's sides and a depth of its shorter side, as an extrusion has
-        (_, _), (w, h), angle = cv2.minAreaRect(_outline(mask).astype(np.float32))
-        t = np.radians(angle)
-        edges = np.array([[w * np.cos(t), w * np.sin(t), 0.0], [-h * np.sin(t), h * np.cos(t), 0.0],
-                          [0.0, 0.0, max(min(w, h), 1.0)]])
-    lengths = np.linalg.norm(edges, axis=1)
-    u, _, vt = np.linalg.svd(edges / lengths[:, None])  # the nearest rotation to the (nearly orthogonal) edges
-    axes = u @ vt
-    if np.linalg.det(axes) < 0:
-        axes[2] *= -1
-    return axes, 0.5 * lengths
-
-
 def _hull(cuboid: Cuboid, camera: Camera) -> np.ndarray:
     """(K, 2) the projected box's outline, a convex polygon."""
     points = project(cuboid.corners(), camera)
@@ -209,15 +114,15 @@ def _iou(a: np.ndarray, b: np.ndarray) -> float:
     return float((a & b).sum() / max((a | b).sum(), 1))
 
 
-def _starts(mask: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+def _starts(mask: np.ndarray, corners: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
     """(axes (3, 3) rows, half-lengths (3,) pixels) to start a box's fit from: the outline's orthographic
     reading when it has one, then boxes turned 0-60° and seen level or from above, as large as the outline
     (a box seen square on, or under strong perspective, is not read right orthographically)."""
     starts = []
-    read = box_outline_edges(mask)
+    read = box_outline_edges(mask, corners)
     if read is not None:
         starts.append(read)
-    x, y, w, h = cv2.boundingRect(mask.astype(np.uint8))
+    _, _, w, h = cv2.boundingRect(mask.astype(np.uint8))
     for yaw, pitch in _GENERIC_VIEWS:
         turn = axis_angle_to_matrix([np.radians(pitch), 0.0, 0.0]) @ axis_angle_to_matrix([0.0, np.radians(yaw), 0.0])
         starts.append((turn.T, np.array([0.35 * w, 0.4 * h, 0.3 * w])))
@@ -233,17 +138,18 @@ def fit_cuboid(mask: np.ndarray, camera: Camera, depth: float) -> Cuboid | None:
     search). Its ``iou`` says how well; None when the outline is not a box's (4 or 6 corners).
     """
     mask = np.asarray(mask, dtype=bool)
-    if box_outline(mask) is None:
+    corners = box_outline(mask)
+    if corners is None:
         return None
     f = 0.5 * (camera.fx + camera.fy)
     v, u = np.nonzero(mask)
     centre_px = np.array([u.mean(), v.mean()])
-    outline = _outline(mask)
+    outline = largest_outline(mask)[:, 0].astype(np.float64)
     outline = outline[np.linspace(0, len(outline) - 1, min(len(outline), _OUTLINE_SAMPLES)).astype(int)]
     inside = ndimage.distance_transform_edt(mask)
     signed = ndimage.distance_transform_edt(~mask) - np.maximum(inside - 1.0, 0.0)  # 0 on the outline's pixels
     best = None
-    for axes0, half_px in _starts(mask):
+    for axes0, half_px in _starts(mask, corners):
 
         def box(x: np.ndarray) -> Cuboid:
             axes = axis_angle_to_matrix(x[:3]) @ axes0.T
@@ -326,7 +232,7 @@ def cuboid_surfels(cuboid: Cuboid, image: np.ndarray, mask: np.ndarray, camera: 
                   + b[None, :, None] * cuboid.half[j] * cuboid.axes[j])  # (n_i, n_j, 3)
         grids.append((points, np.array([2 * cuboid.half[i] / n_i, 2 * cuboid.half[j] / n_j])))
         if cosines[index] >= MIN_VIEW_COSINE:
-            seen[index] = _Texture(rgb, _face_pixels(cuboid, k, s, camera, mask), radius_px)
+            seen[index] = MaskedTexture(rgb, _face_pixels(cuboid, k, s, camera, mask), radius_px)
     colours: list[np.ndarray | None] = [None] * 6
     sources = [grids[i][0] for i in range(6)]
     for index, (k, s, _) in enumerate(faces):  # a face the photo shows, or its mirror image

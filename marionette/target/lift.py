@@ -5,8 +5,9 @@ so the default is geometric: a shape prior chosen from the silhouette
 (:mod:`.shapes`: inflated, revolved or extruded) gives the object's depth,
 and its closed surface is sampled by area into flat Gaussians
 (:mod:`.surfels`), one on each visible pixel's ray where the surface faces
-the camera, so the reference view reproduces the image. A box is rebuilt as
-one, face by face (:mod:`.cuboid`).
+the camera, so the reference view reproduces the image. A box or a pot is
+rebuilt as a solid instead, each surface textured from where the photo shows
+it (:mod:`.cuboid`, :mod:`.revolution`).
 """
 
 from __future__ import annotations

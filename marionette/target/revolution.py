@@ -33,7 +33,7 @@ from ..camera import Camera
 from ..gaussians import Gaussians
 from ..geometry import matrix_to_quaternion
 from ._solid import FLATNESS, MIN_VIEW_COSINE, OVERLAP, blur_level, project, sample_spacing
-from .surfels import _Texture
+from .surfels import MaskedTexture
 from .synthesis import fill_unseen, quilt
 
 __all__ = ["Revolution", "fit_revolution", "revolution_surfels", "MIN_REVOLUTION_IOU"]
@@ -316,7 +316,7 @@ def revolution_surfels(body: Revolution, image: np.ndarray, pixels: np.ndarray, 
     holes = np.isinf(zbuffer)  # pixels between samples take their neighbours' nearest depth
     zbuffer = np.where(holes, cv2.erode(np.where(holes, np.float32(3e38), zbuffer.astype(np.float32)),
                                         np.ones((3, 3), np.uint8)), zbuffer)
-    texture = _Texture(image[..., :3], pixels, radius_px)
+    texture = MaskedTexture(image[..., :3], pixels, radius_px)
     slack = _DEPTH_SLACK * spacing
     # The mirror across the view: through the axis, its normal the view's direction square to the axis.
     view = body.base + 0.5 * body.heights[-1] * body.axis

@@ -26,13 +26,14 @@ a solid of revolution about an axis that may lean towards the camera
 (:mod:`.revolution`), its profile from :func:`revolve_profile`.
 
 :func:`choose_shape` picks one from the silhouette alone: ``cuboid`` when
-the outline is a box's, ``extrude`` when it is another polygon of at most
-``_MAX_CORNERS`` corners with straight sides (it fits within
-``_POLYGON_TOLERANCE`` of the object's size, and nine tenths of the outline
-lie within ``_STRAIGHT`` of the tolerance, or a pixel and a quarter, of its
-sides: a can's elliptical ends bow away from them, a box's edges do not),
-else ``revolve`` when at least ``_MIN_SYMMETRY`` of the mask lies in its
-mirror image about the best near-vertical axis, else ``inflate``.
+the outline has a box's 4 or 6 corners (:func:`box_outline`; where no box
+fits it, the lift falls back to the sheets' choice), ``extrude`` when it is
+another polygon of at most ``_MAX_CORNERS`` corners with straight sides (it
+fits within ``_POLYGON_TOLERANCE`` of the object's size, and nine tenths of
+the outline lie within ``_STRAIGHT`` of the tolerance, or a pixel and a
+quarter, of its sides: a can's elliptical ends bow away from them, a box's
+edges do not), else ``revolve`` when at least ``_MIN_SYMMETRY`` of the mask
+lies in its mirror image about the best near-vertical axis, else ``inflate``.
 """
 
 from __future__ import annotations
@@ -46,10 +47,9 @@ from scipy import ndimage, sparse
 from scipy.sparse.linalg import spsolve
 
 from ..errors import InputError
-from .cuboid import box_edges, box_outline
 
 __all__ = ["SHAPES", "ShapeChoice", "ShapeDepth", "choose_shape", "shape_depth", "inflate_silhouette",
-           "revolve_profile"]
+           "revolve_profile", "largest_outline", "box_outline", "box_edges", "box_outline_edges"]
 
 #: Shape prior names accepted by :func:`half_thickness` (``"auto"`` is :func:`choose_shape`'s).
 SHAPES = ("inflate", "revolve", "extrude", "cuboid")
@@ -76,6 +76,9 @@ _APPENDAGE = 0.06
 _MIN_PIECE = 0.01
 # Edge radius of an extrusion, as a share of its depth.
 _EDGE_ROUNDING = 0.15
+# A box's outline is read as seen level when pairing the top chain's sides with the bottom's in the same
+# order matches their lengths better by this much (sum of |log length ratio|).
+_LEVEL_MARGIN = 0.1
 
 
 @dataclass(frozen=True)
@@ -136,7 +139,7 @@ class ShapeChoice:
                 "pitch": self.pitch}
 
 
-def _largest_outline(mask: np.ndarray) -> np.ndarray:
+def largest_outline(mask: np.ndarray) -> np.ndarray:
     """(K, 1, 2) int32 outer contour of the largest connected component."""
     contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     return max(contours, key=cv2.contourArea)
@@ -149,7 +152,7 @@ def _tolerance(mask: np.ndarray) -> float:
 
 def _polygon_fit(mask: np.ndarray) -> tuple[float, int, float, bool]:
     """(IoU of the simplified outline with the mask, its corner count, solidity, whether its sides are straight)."""
-    outline = _largest_outline(mask)
+    outline = largest_outline(mask)
     area = float(mask.sum())
     tolerance = _tolerance(mask)
     polygon = cv2.approxPolyDP(outline, tolerance, True)
@@ -311,7 +314,7 @@ def _revolve(mask: np.ndarray, column: float, tilt: float) -> tuple[np.ndarray, 
 
 def _extrude(mask: np.ndarray) -> np.ndarray:
     """(H, W) half-thickness of the outline pushed back by the short side of its enclosing rectangle."""
-    (_, _), (a, b), _ = cv2.minAreaRect(_largest_outline(mask))
+    (_, _), (a, b), _ = cv2.minAreaRect(largest_outline(mask))
     half_depth = 0.5 * max(min(a, b), 1.0)
     rounding = _EDGE_ROUNDING * 2 * half_depth
     inside = cv2.distanceTransform(np.pad(mask, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1] - 0.5
@@ -320,10 +323,90 @@ def _extrude(mask: np.ndarray) -> np.ndarray:
     return np.where(mask, half_depth - rounding + edge, 0.0).astype(np.float32)
 
 
+def box_outline(mask: np.ndarray) -> np.ndarray | None:
+    """The corners (6, 2) or (4, 2) of a box's outline in the (H, W) bool mask, pixels; None if it has neither."""
+    outline = largest_outline(mask)
+    tolerance = _tolerance(mask)
+    for scale in (1.0, 1.5, 2.0):  # a small box's pixel steps may add a corner at the finest tolerance
+        polygon = cv2.approxPolyDP(outline, scale * tolerance, True)
+        if len(polygon) <= 6:
+            break
+    return polygon[:, 0].astype(np.float64) if len(polygon) in (4, 6) else None
+
+
+def box_edges(corners: np.ndarray) -> np.ndarray | None:
+    """A box's three edges in 3D (3, 3), pixel units (orthographic), from its hexagonal outline (6, 2), or None.
+
+    The outline's two most vertical sides are the box's outer vertical edge ``c``; the others form a top
+    and a bottom chain of two sides each, left to right. Seen from above or below, the bottom chain runs
+    the top's sides in the other order (the outline of a box is then the hexagon ``a, b, c, -a, -b, -c``),
+    and orthogonal edges fix the depths: ``a_z b_z = -a·b`` and the two alike, so
+    ``a_z² = -(a·b)(a·c)/(b·c)``; of its two mirror readings the one showing the upper face is taken. Seen
+    level, both chains run alike (perspective bends them at the near vertical edge), ``c`` is
+    perpendicular to ``a`` and ``b`` and the products are 0/0: then ``c_z = 0`` and the two faces beside
+    the near edge turn away from it equally, ``-a_z = b_z = sqrt(a·b)``.
+    """
+    sides = np.roll(corners, -1, axis=0) - corners  # (6, 2), side k from corner k to k + 1
+    steep = np.abs(sides[:, 1]) / np.maximum(np.linalg.norm(sides, axis=1), 1e-9)
+    first = int(np.argmax(steep[:3] + steep[3:]))  # the pair k, k + 3 of most vertical opposite sides
+    if min(steep[first], steep[first + 3]) < 0.7:
+        return None
+    order = np.roll(np.arange(6), -first)  # sides: vertical, chain, chain, vertical, chain, chain
+    chains = [sides[order[1:3]], sides[order[4:6]]]
+    # Left to right (a chain walked right to left is reversed and negated); the top one's middle corner is higher.
+    chains = [ch if ch[:, 0].sum() > 0 else -ch[::-1] for ch in chains]
+    top, bottom = chains if corners[order[2], 1] < corners[order[5], 1] else chains[::-1]
+    down = [side if side[1] >= 0 else -side for side in (sides[order[0]], sides[order[3]])]
+    vertical = 0.5 * (down[0] + down[1])
+    # Which side of the bottom chain is which of the top's: the same edge projects to about the same length.
+    length = lambda u, v: abs(np.log(np.linalg.norm(u) / max(np.linalg.norm(v), 1e-9)))  # noqa: E731
+    same = length(top[0], bottom[0]) + length(top[1], bottom[1])
+    swapped = length(top[0], bottom[1]) + length(top[1], bottom[0])
+    if swapped < same + _LEVEL_MARGIN:  # seen from above or below (or alike either way: try that first)
+        a, b, c = 0.5 * (top[0] + bottom[1]), 0.5 * (top[1] + bottom[0]), vertical
+        ab, ac, bc = a @ b, a @ c, b @ c
+        if min(abs(ab), abs(ac), abs(bc)) > 1e-9 and -ab * ac / bc > 0:
+            a_z = np.sqrt(-ab * ac / bc)
+            edges = np.array([[*a, a_z], [*b, -ab / a_z], [*c, -ac / a_z]])
+            normals = edges / np.linalg.norm(edges, axis=1, keepdims=True)
+            upper = normals[np.argmax(np.abs(normals[:, 1]))]
+            if upper[1] * upper[2] < 0:  # the face toward the image's top faces the camera (y down, z away)
+                edges[:, 2] *= -1
+            return edges
+    a, b = 0.5 * (top[0] + bottom[0]), 0.5 * (top[1] + bottom[1])
+    if a @ b <= 0:
+        return None
+    depth = np.sqrt(a @ b)
+    return np.array([[*a, -depth], [*b, depth], [*vertical, 0.0]])
+
+
+def box_outline_edges(mask: np.ndarray, corners: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """(axes (3, 3) rows, half-lengths (3,) in pixels) of the box an outline's corners (6|4, 2) show, or None.
+
+    Read orthographically: a hexagon by :func:`box_edges`; a rectangle (the (H, W) bool ``mask``'s) as a box
+    seen square on, as deep as its shorter side (what an extrusion assumes).
+    """
+    if len(corners) == 6:
+        edges = box_edges(corners)
+        if edges is None:
+            return None
+    else:  # seen square on: the rectangle's sides and a depth of its shorter side, as an extrusion has
+        (_, _), (w, h), angle = cv2.minAreaRect(largest_outline(mask))
+        t = np.radians(angle)
+        edges = np.array([[w * np.cos(t), w * np.sin(t), 0.0], [-h * np.sin(t), h * np.cos(t), 0.0],
+                          [0.0, 0.0, max(min(w, h), 1.0)]])
+    lengths = np.linalg.norm(edges, axis=1)
+    u, _, vt = np.linalg.svd(edges / lengths[:, None])  # the nearest rotation to the (nearly orthogonal) edges
+    axes = u @ vt
+    if np.linalg.det(axes) < 0:
+        axes[2] *= -1
+    return axes, 0.5 * lengths
+
+
 def _cuboid(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     """A box seen at an angle as sheets over its hexagonal outline: (offset, half) (H, W) pixels, or None.
 
-    The box's edges come from :func:`~.cuboid.box_edges`; each pixel's front and back are where its ray
+    The box's edges come from :func:`box_edges`; each pixel's front and back are where its ray
     (taken orthographic) enters and leaves the box.
     """
     corners = box_outline(mask)

@@ -41,7 +41,7 @@ from ..gaussians import Gaussians
 from ..geometry import matrix_to_quaternion
 from ..parallel import chunks, parallel_for
 
-__all__ = ["sample_surface"]
+__all__ = ["MaskedTexture", "sample_surface"]
 
 # Gaussian standard deviation over sample spacing (neighbours overlap, no gaps), and thickness over width.
 _OVERLAP = 0.6
@@ -65,7 +65,7 @@ _MIN_WEIGHT = 1e-3
 _EMIT_CHUNK = 64
 
 
-class _Texture:
+class MaskedTexture:
     """The photo's object pixels at a few blur levels, read bilinearly without background bleeding in."""
 
     def __init__(self, rgb: np.ndarray, mask: np.ndarray, radius_px: float):
@@ -281,7 +281,7 @@ def _walls(grid: _Grid, cells: np.ndarray, s: int) -> list[_Patches]:
     return out
 
 
-def _emit_numpy(patches: _Patches, texture: _Texture, rotation: np.ndarray) -> _Samples:
+def _emit_numpy(patches: _Patches, texture: MaskedTexture, rotation: np.ndarray) -> _Samples:
     """Every patch's samples at its sub-patch centres; ``rotation`` (3, 3) camera to world.
 
     The plain-NumPy twin of :func:`_emit_chunks`.
@@ -427,7 +427,7 @@ def _emit_chunks(first, step, nchunks, corners, uv, fold, split_a, split_b, leve
                         colours[n, c] = min(max(value, 0.0), 1.0)
 
 
-def _emit(patches: _Patches, texture: _Texture, rotation: np.ndarray, reference: bool = False) -> _Samples:
+def _emit(patches: _Patches, texture: MaskedTexture, rotation: np.ndarray, reference: bool = False) -> _Samples:
     """The surfels of ``patches``, each split into sub-patches with one surfel at each centre (camera-frame
     means, world-frame rotations: ``rotation`` (3, 3) camera to world)."""
     if reference:
@@ -464,7 +464,7 @@ def sample_surface(image: np.ndarray, mask: np.ndarray, cells: np.ndarray, mid: 
     -------
     (Gaussians, pixel_of): N surfels, and the (N, 2) int32 (u, v) pixel of the cell each came from.
     """
-    texture = _Texture(image[..., :3], mask, radius_px)
+    texture = MaskedTexture(image[..., :3], mask, radius_px)
     c2w = np.linalg.inv(camera.world_to_camera)
     parts = []
     for piece in np.unique(cells[cells > 0]):  # each piece closed on its own
