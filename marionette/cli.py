@@ -509,6 +509,10 @@ TargetShape = Annotated[str, typer.Option(
     rich_help_panel=TARGET)]
 Polish = Annotated[int, typer.Option(
     help="Steps fitting the lifted photo's colours to it (sharper; 0: off).", rich_help_panel=TARGET)]
+Relight = Annotated[bool, typer.Option(
+    "--relight/--no-relight", metavar="",
+    help="Relight a rebuilt box or pot: a side turned to the light brightens.",
+    rich_help_panel=TARGET)]
 TargetMask = Annotated[Optional[Path], typer.Option(
     help="Image marking the target object (default: alpha, else found).", rich_help_panel=SELECTION)]
 TargetPoint = Annotated[Optional[list[str]], typer.Option(
@@ -557,6 +561,7 @@ class _Playback:
     target_depth: Path | None
     shape: str
     polish: int
+    relight: bool
     anchor: str
     motion: str
     part_seeds: dict[int, tuple[float, float]] | None
@@ -569,7 +574,7 @@ class _Playback:
 def _playback(output: Path, target: Path, frames, speed, loop, reverse, rotation_scale, translation_scale, fps,
               background, size,
               camera, camera_amount, camera_path, ply_dir, target_mask, target_prompt, target_depth, shape, polish,
-              anchor, motion, part_seed, refine, preview, splats, gltf) -> _Playback:
+              relight, anchor, motion, part_seed, refine, preview, splats, gltf) -> _Playback:
     """Check every playback option (before any work starts) and the output paths."""
     from . import pipeline
     from .render.camera_path import CAMERA_MOVES, check_camera_move, load_camera_path
@@ -610,7 +615,7 @@ def _playback(output: Path, target: Path, frames, speed, loop, reverse, rotation
     return _Playback(frames, speed, loop, reverse, rotation_scale, translation_scale, fps,
                      background, checked("--size", parse_size, size),
                      camera, camera_amount, camera_path, ply_dir, target_mask if found is None else found,
-                     target_prompt, target_depth, shape, polish, anchor, motion,
+                     target_prompt, target_depth, shape, polish, relight, anchor, motion,
                      checked("--part-seed", parse_part_seeds, part_seed or None), refine, preview, splats, gltf)
 
 
@@ -627,7 +632,8 @@ def _transfer_and_render(prior, target: Path, output: Path, play: _Playback, ses
                     else load_camera_path(play.camera_path, output_length(prior.num_frames, play.speed, play.frames)))
     with session.reporter.stage("lifting target", 1) as progress:
         lifted = pipeline.load_target(target, size=play.size, mask=play.target_mask, depth=play.target_depth,
-                                      options=LiftOptions(shape=play.shape, polish=play.polish), prior=prior,
+                                      options=LiftOptions(shape=play.shape, polish=play.polish, relight=play.relight),
+                                      prior=prior,
                                       prompt=play.target_prompt)
         progress(1, 1)
     if lifted.shape is not None:
@@ -693,7 +699,7 @@ def transfer(prior: Annotated[Path, typer.Argument(help="SpaT prior .npz.")],
              camera_amount: CameraAmount = None, camera_path: CameraPath = None, ply_dir: PlyDir = None,
              target_mask: TargetMask = None, target_point: TargetPoint = None, target_box: TargetBox = None,
              target_exclude: TargetExclude = None, target_depth: TargetDepth = None, shape: TargetShape = "auto",
-             polish: Polish = 0, anchor: Anchor = "centroid", motion: Motion = "filmed",
+             polish: Polish = 0, relight: Relight = True, anchor: Anchor = "centroid", motion: Motion = "filmed",
              part_seed: PartSeed = None, refine: Refine = True,
              preview: Preview = None, splats: Splats = None, gltf: Gltf = None, quiet: Quiet = False,
              verbose: Verbose = False, json_summary: Json = False, config: Config = None) -> None:
@@ -701,7 +707,7 @@ def transfer(prior: Annotated[Path, typer.Argument(help="SpaT prior .npz.")],
     play = _playback(output, target, frames, speed, loop, reverse, rotation_scale, translation_scale, fps,
                      background, size, camera, camera_amount, camera_path, ply_dir, target_mask,
                      _prompt("target", target_point, target_box, target_exclude), target_depth, shape,
-                     polish, anchor, motion, part_seed, refine, preview, splats, gltf)
+                     polish, relight, anchor, motion, part_seed, refine, preview, splats, gltf)
     with _session("transfer", quiet, verbose, json_summary) as session:
         _transfer_and_render(read_prior(prior), target, output, play, session)
 
@@ -722,7 +728,7 @@ def run(source: Annotated[Path, typer.Argument(help="Video file or folder of fra
         camera_amount: CameraAmount = None, camera_path: CameraPath = None, ply_dir: PlyDir = None,
         target_mask: TargetMask = None, target_point: TargetPoint = None, target_box: TargetBox = None,
         target_exclude: TargetExclude = None, target_depth: TargetDepth = None, shape: TargetShape = "auto",
-        polish: Polish = 0, anchor: Anchor = "centroid", motion: Motion = "filmed",
+        polish: Polish = 0, relight: Relight = True, anchor: Anchor = "centroid", motion: Motion = "filmed",
         part_seed: PartSeed = None, refine: Refine = True,
         preview: Preview = None, splats: Splats = None, gltf: Gltf = None, side_by_side: SideBySide = None,
         report: Report = None,
@@ -733,7 +739,7 @@ def run(source: Annotated[Path, typer.Argument(help="Video file or folder of fra
     play = _playback(output, target, frames, speed, loop, reverse, rotation_scale, translation_scale, fps,
                      background, size, camera, camera_amount, camera_path, ply_dir, target_mask,
                      _prompt("target", target_point, target_box, target_exclude), target_depth, shape,
-                     polish, anchor, motion, part_seed, refine, preview, splats, gltf)
+                     polish, relight, anchor, motion, part_seed, refine, preview, splats, gltf)
     prompt = _prompt("source", source_point, source_box, source_exclude)
     if side_by_side is not None:
         _video_output(side_by_side)

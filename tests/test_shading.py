@@ -1,104 +1,119 @@
-"""Shading of the reconstruction (``marionette.reconstruct.shading``): known answers and gradients."""
-
 import numpy as np
 import pytest
 
 from marionette.camera import Camera
-from marionette.geometry import axis_angle_to_matrix, make_transform, matrix_to_quaternion
-from marionette.reconstruct import ReconstructOptions, reconstruct_object
-from marionette.reconstruct._views import FitView
-from marionette.reconstruct.fit import _loss_and_grads
-from marionette.reconstruct.shading import Lighting, shade_factors, shade_sh, unit_rows
-from marionette.render.sh import eval_sh
-from marionette.synthetic import make_scene
+from marionette.gaussians import Gaussians
+from marionette.geometry import axis_angle_to_matrix, matrix_to_quaternion
+from marionette.render import render
+from marionette.render.sh import eval_sh, rotate_sh
+from marionette.synthetic import object_view
+from marionette.target.lift import LiftOptions, lift_image
+from marionette.target.shading import Light, estimate_light, shaded_sh
 
 
-def test_shaded_coefficients_give_the_colour_times_the_factor():
-    rng = np.random.default_rng(0)
-    sh = rng.normal(0, 0.2, (50, 4, 3)).astype(np.float32)
-    dirs = rng.normal(size=(50, 3))
-    factors = rng.uniform(0.3, 1.0, 50)
-    np.testing.assert_allclose(eval_sh(shade_sh(sh, factors), dirs), factors[:, None] * eval_sh(sh, dirs),
-                               atol=2e-6)
+def lambert(normals: np.ndarray, light: Light) -> np.ndarray:
+    """The shading model written out: ambient + (1 - ambient) · max(n · l, 0) for (..., 3) normals."""
+    return light.ambient + (1 - light.ambient) * np.maximum(normals @ np.asarray(light.direction), 0.0)
 
 
-def test_faces_towards_the_light_are_brighter_and_away_from_it_ambient():
-    light = Lighting(np.array([0.0, 0.0, -1.0]), 0.4)
-    normals = np.array([[0.0, 0.0, -1.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0], unit_rows(np.array([0.0, 1, -1]))])
-    np.testing.assert_allclose(shade_factors(normals, light), [1.0, 0.6, 0.6, 0.6 + 0.4 / np.sqrt(2)])
+def light_beside(view: np.ndarray, light: Light) -> np.ndarray:
+    """(3,) the light's direction for a surfel seen along ``view`` (3,): where it is for one on the optical axis,
+    relative to the view (forward, the camera's up square to it, and right)."""
+    forward = view / np.linalg.norm(view)
+    up = np.array([0.0, -1.0, 0.0]) - (np.array([0.0, -1.0, 0.0]) @ forward) * forward
+    up /= np.linalg.norm(up)
+    right = np.cross(forward, up)
+    x, y, z = light.direction
+    return x * right - y * up + z * forward
 
 
-def fit_problem(rng: np.random.Generator, n: int = 24):
-    """Random Gaussians on two parts, their poses, a view of them and a light."""
-    params = {"means": rng.normal(0, 0.25, (n, 3)).astype(np.float32),
-              "quats": rng.normal(size=(n, 4)).astype(np.float32),
-              "log_scales": np.log(rng.uniform(0.08, 0.2, (n, 3))).astype(np.float32),
-              "logits": np.full(n, 1.5, np.float32), "dc": rng.normal(0, 0.3, (n, 3)).astype(np.float32),
-              "rest": rng.normal(0, 0.2, (n, 3, 3)).astype(np.float32), "normals": rng.normal(size=(n, 3))}
-    parts = np.repeat([0, 1], n // 2)
-    poses = np.stack([make_transform(axis_angle_to_matrix(v), t) for v, t in
-                      (([0.4, -0.9, 0.2], [0.0, 0.0, 3.0]), ([-0.8, 0.5, 1.1], [0.1, -0.1, 3.2]))])
-    camera = Camera(np.array([[60.0, 0, 24], [0, 60.0, 24], [0, 0, 1]]), np.eye(4), 48, 48)
-    view = FitView(0, camera, rng.uniform(0, 1, (48, 48, 3)).astype(np.float32), np.ones((48, 48), np.float32))
-    light = {"direction": np.array([[0.3, -0.5, -0.8]]), "diffuse": np.array([0.2])}
-    return params, parts, view, poses, matrix_to_quaternion(poses[:, :3, :3]), light
+def random_light(rng: np.random.Generator) -> Light:
+    """A light in front of the object (towards the camera, -z), anywhere within 60° of the view."""
+    polar, azimuth = np.radians(rng.uniform(10, 60)), rng.uniform(0, 2 * np.pi)
+    direction = np.array([np.sin(polar) * np.cos(azimuth), np.sin(polar) * np.sin(azimuth), -np.cos(polar)])
+    return Light(tuple(direction), float(rng.uniform(0.3, 0.7)))
 
 
-@pytest.mark.parametrize("name", ["normals", "direction", "diffuse", "dc", "rest"])
-def test_fit_gradients_of_the_shading_match_finite_differences(name):
-    """Normals turned with their parts, the light, the diffuse share, and the colours under them."""
-    rng = np.random.default_rng(7)
-    params, parts, view, poses, q_pose, light = fit_problem(rng)
-    _, grads, _ = _loss_and_grads(params, parts, view, poses, q_pose, 0.5, light)
-    source = light if name in light else params
-    direction = rng.normal(size=source[name].shape)
-    step = 1e-2
-
-    def loss_at(offset: float) -> float:
-        moved = {**source, name: (source[name] + offset * direction).astype(source[name].dtype)}
-        if source is light:
-            return _loss_and_grads(params, parts, view, poses, q_pose, 0.5, moved)[0]
-        return _loss_and_grads(moved, parts, view, poses, q_pose, 0.5, light)[0]
-
-    numeric = (loss_at(step) - loss_at(-step)) / (2 * step)
-    analytic = float(np.sum(grads[name] * direction))
-    assert abs(numeric) > 1e-4  # the term does move the loss
-    assert analytic == pytest.approx(numeric, rel=0.05)
+def test_the_light_is_read_from_a_textured_ball():
+    rng = np.random.default_rng(3)
+    size = 96
+    y, x = (np.mgrid[:size, :size] + 0.5 - size / 2) / (0.45 * size)
+    pixels = x**2 + y**2 < 1
+    normals = np.stack([x, y, -np.sqrt(np.clip(1 - x**2 - y**2, 0, 1))], axis=-1)  # facing the camera
+    for _ in range(5):
+        truth = random_light(rng)
+        albedo = rng.uniform(0.4, 0.9, (size, size, 1)) * rng.uniform(0.7, 1.0, 3)  # speckled, one material
+        image = np.clip(np.rint(255 * albedo * lambert(normals, truth)[..., None]), 0, 255).astype(np.uint8)
+        found = estimate_light(image, normals, pixels)
+        assert found is not None
+        angle = np.degrees(np.arccos(np.clip(np.dot(found.direction, truth.direction), -1, 1)))
+        assert angle < 8.0 and abs(found.ambient - truth.ambient) < 0.12, (angle, found, truth)
 
 
-def test_an_object_turning_under_a_fixed_light_is_fitted_with_it():
-    """The synthetic renderer lights its objects from a light fixed to the camera; turning about the
-    optical axis, the faces change their shading but not the direction they are seen from. The fit
-    with shading finds a light above, left and in front (the renderer's) and beats the fit without."""
-    scene = make_scene("inplane", num_frames=12, size=(128, 96), seed=0)
-    prior = scene.ground_truth_prior()
-    from marionette.eval.metrics import masked_psnr
-
-    odd = range(1, 12, 2)
-    held = {}
-    for shading in (False, True):
-        rec = reconstruct_object(scene.frames, scene.masks, prior, frames_used=range(0, 12, 2),
-                                 options=ReconstructOptions(iterations=200, shading=shading))
-        held[shading] = np.mean([masked_psnr(rec.render_frame(prior, t), scene.frames[t], scene.masks[t])
-                                 for t in odd])
-    assert rec.shading is not None and rec.shading.lighting.diffuse > 0.2
-    light = rec.shading.lighting.direction
-    assert light[2] < 0 and light[1] < 0  # in front (towards the camera) and above (image y points down)
-    assert held[True] > held[False] + 1.0, held
+def test_one_way_of_facing_tells_nothing_of_the_light():
+    image = np.full((40, 40, 3), 120, np.uint8)
+    normals = np.broadcast_to(np.array([0.0, 0.0, -1.0]), (40, 40, 3))
+    assert estimate_light(image, normals, np.ones((40, 40), bool)) is None
 
 
-def test_the_trajectory_of_a_shaded_fit_renders_its_frames_as_the_fit_does():
-    """eval-self renders the reconstruction through its trajectory: each frame as ``at`` gives it."""
-    from marionette.render import render
+def test_shaded_surfels_show_the_photo_where_it_was_taken_and_turn_under_the_light():
+    """Against the shading model written out: exact at the reference view, within the band limit elsewhere."""
+    rng = np.random.default_rng(5)
+    n = 200
+    normals = rng.normal(size=(n, 3))
+    normals[:, 2] = -np.abs(normals[:, 2])  # facing the camera at the origin
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    frames = np.cross([1.0, 0.0, 0.0], normals)  # no normal lies along x: every frame is proper
+    frames /= np.linalg.norm(frames, axis=1, keepdims=True)
+    rotations = np.stack([frames, np.cross(normals, frames), normals], axis=2)  # columns: tangent, tangent, normal
+    means = np.column_stack([rng.uniform(-1, 1, (n, 2)), rng.uniform(6, 8, n)])
+    gaussians = Gaussians.from_rgb(means, np.full((n, 3), 0.5), np.full((n, 3), 0.01), 0.9,
+                                   matrix_to_quaternion(rotations))
+    albedo = rng.uniform(0.2, 0.9, (n, 3))
+    light = Light(tuple(np.array([-0.4, -0.6, -0.7]) / np.linalg.norm([-0.4, -0.6, -0.7])), 0.4)
+    sh = shaded_sh(gaussians, albedo, light)
+    assert sh.shape == (n, 9, 3)
+    ahead = means / np.linalg.norm(means, axis=1, keepdims=True)
+    lights = np.array([light_beside(d, light) for d in ahead])
+    expected = albedo * (light.ambient + (1 - light.ambient)
+                         * np.maximum(np.einsum("ni,ni->n", normals, lights), 0))[:, None]
+    np.testing.assert_allclose(eval_sh(sh, ahead), expected, atol=1e-4)
+    # Turned 50° about the vertical through each surfel, seen by the same camera: the light stays put.
+    turn = axis_angle_to_matrix([0.0, np.radians(50.0), 0.0])
+    seen = eval_sh(rotate_sh(sh, turn[None], np.zeros(n, np.int64)), ahead)
+    turned = normals @ turn.T
+    front = np.einsum("ni,ni->n", turned, ahead) < -0.2  # surfels still facing the camera
+    truth = albedo * (light.ambient + (1 - light.ambient)
+                      * np.maximum(np.einsum("ni,ni->n", turned, lights), 0))[:, None]
+    assert front.sum() > 50
+    assert np.abs(seen - truth)[front].max() < 0.12
+    assert np.abs(seen - truth)[front].mean() < 0.02
 
-    scene = make_scene("inplane", num_frames=6, size=(96, 72), seed=2)
-    prior = scene.ground_truth_prior()
-    rec = reconstruct_object(scene.frames, scene.masks, prior, options=ReconstructOptions(iterations=30))
-    trajectory = rec.trajectory(prior)
-    camera = Camera(prior.intrinsics, np.eye(4), 96, 72)
-    for t in (0, 5):
-        np.testing.assert_allclose(render(trajectory.frame(rec.gaussians, t), camera).image,
-                                   rec.render_frame(prior, t), atol=2e-3)
-    # the colours at rest are the shaded ones (what a .ply holds), and they change as the object turns
-    np.testing.assert_allclose(trajectory.frame(rec.gaussians, 0).sh, rec.gaussians.sh, atol=1e-5)
-    assert np.abs(trajectory.frame(rec.gaussians, 5).sh[:, 0] - rec.gaussians.sh[:, 0]).max() > 0.01
+
+def blurred_psnr(truth: np.ndarray, image: np.ndarray, alpha: np.ndarray) -> float:
+    import cv2
+
+    true_mask, mask = truth[..., 3] > 0, alpha > 0.5
+    a = cv2.GaussianBlur(np.where(true_mask[..., None], truth[..., :3], 128).astype(np.float32), (0, 0), 3)
+    b = cv2.GaussianBlur(np.where(mask[..., None], image, 128).astype(np.float32), (0, 0), 3)
+    return float(10 * np.log10(255.0**2 / max(float(((a - b) ** 2)[true_mask | mask].mean()), 1e-12)))
+
+
+@pytest.mark.parametrize("seed, yaw, pitch", [(0, 35.0, 20.0), (1, 50.0, 25.0)])
+def test_a_box_turned_to_the_light_brightens_as_the_truth_does(seed, yaw, pitch):
+    """A plain box (one colour per face, lit by the synthetic renderer's lamp) lifted from one view, turned 90°."""
+    kwargs = {"size": (160, 160), "seed": seed, "pitch_deg": pitch, "fov_deg": 60.0, "plain": True}
+    photo, camera, centre = object_view("box", yaw_deg=yaw, **kwargs)
+    up = axis_angle_to_matrix([np.radians(pitch), 0.0, 0.0]) @ np.array([0.0, 1.0, 0.0])
+    scores = {}
+    for relight in (False, True):
+        lifted = lift_image(photo, camera=camera, options=LiftOptions(depth=float(centre[2]), relight=relight))
+        assert (lifted.shape.light is not None) == relight and lifted.gaussians.sh_degree == (2 if relight else 0)
+        g = lifted.gaussians
+        for turn in (0, 90):
+            r = axis_angle_to_matrix(up * np.radians(turn))
+            out = render(g.with_means((g.means - centre) @ r.T + centre).turned(matrix_to_quaternion(r)), camera)
+            image = np.clip(np.rint(out.image * 255), 0, 255).astype(np.uint8)
+            scores[relight, turn] = blurred_psnr(object_view("box", yaw_deg=yaw + turn, **kwargs)[0], image, out.alpha)
+    assert scores[True, 0] > 32  # the photo itself, again
+    assert scores[True, 90] > scores[False, 90] + 4.0, scores

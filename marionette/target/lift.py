@@ -7,11 +7,13 @@ and its closed surface is sampled by area into flat Gaussians
 (:mod:`.surfels`), one on each visible pixel's ray where the surface faces
 the camera, so the reference view reproduces the image. A box or a pot is
 rebuilt as a solid instead, each surface textured from where the photo shows
-it (:mod:`.cuboid`, :mod:`.revolution`).
+it (:mod:`.cuboid`, :mod:`.revolution`) and lit as the photo was lit
+(:mod:`.shading`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import cv2
@@ -25,6 +27,7 @@ from ..segment import grabcut_mask, salient_mask
 from .cuboid import MIN_BOX_IOU, cuboid_surfels, fit_cuboid
 from .polish import polish_reference
 from .revolution import MIN_REVOLUTION_IOU, fit_revolution, revolution_surfels
+from .shading import MIN_ALPHA, Light, deshade, estimate_light, normal_map, shaded_sh
 from .shapes import SHAPES, ShapeChoice, choose_shape, inflate_silhouette, revolve_profile, shape_depth
 from .surfels import sample_surface
 
@@ -74,6 +77,10 @@ class LiftOptions:
         surface textured from where the photo shows it (a target seen from
         every side). False keeps every prior's sheets on the pixels' rays: an
         initial model that other views of the object will correct.
+    relight : bool
+        Read the photo's light off a solid's surfaces and take it out of the colours; each surfel then shows
+        its colour shaded for the way it faces (:mod:`.shading`), so a side turned to the light brightens.
+        False keeps the photo's colours on every side.
     """
 
     stride: int = 1
@@ -86,6 +93,7 @@ class LiftOptions:
     shape: str = "auto"
     polish: int = 0
     solids: bool = True
+    relight: bool = True
 
 
 @dataclass(frozen=True)
@@ -220,6 +228,25 @@ def _focal_for_relative_depth(mask: np.ndarray, relief: np.ndarray, ratio: float
     return max(float(focal), 1.0)
 
 
+def _lit(surfels: Callable[[np.ndarray], tuple[Gaussians, np.ndarray]], image: np.ndarray, pixels: np.ndarray,
+         camera: Camera, options: LiftOptions) -> tuple[Gaussians, np.ndarray, Light | None]:
+    """A solid's surfels coloured from ``image`` (``surfels(photo)``), relit as :mod:`.shading` says.
+
+    ``pixels`` (H, W) bool: the photo's pixels that show the solid. Returns the Gaussians, their pixels
+    (N, 2) and the light read (None when not relit: switched off, or the photo shows one face only).
+    """
+    gaussians, pixel_of = surfels(image)
+    if not options.relight:
+        return gaussians, pixel_of, None
+    normals, alpha = normal_map(gaussians, camera)
+    light = estimate_light(image, normals, pixels & (alpha >= MIN_ALPHA))
+    if light is None:
+        return gaussians, pixel_of, None
+    albedo, scale = deshade(image, normals, alpha, light)
+    gaussians, pixel_of = surfels(albedo)
+    return gaussians.with_sh(shaded_sh(gaussians, gaussians.rgb / scale, light)), pixel_of, light
+
+
 def _solid(choice: ShapeChoice, image: np.ndarray, mask: np.ndarray, camera: Camera, depth: float,
            options: LiftOptions) -> tuple[ShapeChoice, tuple[Gaussians, np.ndarray, np.ndarray] | None]:
     """The object rebuilt as a box or a solid of revolution.
@@ -234,9 +261,9 @@ def _solid(choice: ShapeChoice, image: np.ndarray, mask: np.ndarray, camera: Cam
         if box is not None and (box.iou >= MIN_BOX_IOU or choice.forced):
             depthwise = np.argmax(np.abs(box.axes[:, 2])) == np.arange(3)
             box = replace(box, half=box.half * np.where(depthwise, options.thickness, 1.0))
-            gaussians, pixel_of = cuboid_surfels(box, image, mask, camera, options.stride, options.opacity,
-                                                 radius_px)
-            return replace(choice, solid_iou=box.iou), (gaussians, pixel_of, np.zeros(mask.shape, bool))
+            gaussians, pixel_of, light = _lit(lambda photo: cuboid_surfels(
+                box, photo, mask, camera, options.stride, options.opacity, radius_px), image, mask, camera, options)
+            return replace(choice, solid_iou=box.iou, light=light), (gaussians, pixel_of, np.zeros(mask.shape, bool))
         if choice.forced:
             raise InputError("--shape cuboid: the target's outline shows no box (neither a box's hexagon nor a "
                              "rectangle)")
@@ -245,9 +272,11 @@ def _solid(choice: ShapeChoice, image: np.ndarray, mask: np.ndarray, camera: Cam
         radius, _, pieces = revolve_profile(mask, *choice.axis)
         body = fit_revolution(pieces == 1, radius, *choice.axis, camera, depth, image)
         if body is not None and body.iou >= MIN_REVOLUTION_IOU:
-            gaussians, pixel_of = revolution_surfels(body, image, pieces == 1, camera, options.stride,
-                                                     options.opacity, radius_px)
-            return replace(choice, solid_iou=body.iou, pitch=body.pitch), (gaussians, pixel_of, pieces >= 2)
+            gaussians, pixel_of, light = _lit(lambda photo: revolution_surfels(
+                body, photo, pieces == 1, camera, options.stride, options.opacity, radius_px), image, pieces == 1,
+                camera, options)
+            return (replace(choice, solid_iou=body.iou, pitch=body.pitch, light=light),
+                    (gaussians, pixel_of, pieces >= 2))
     return choice, None
 
 

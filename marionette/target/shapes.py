@@ -39,7 +39,7 @@ lies in its mirror image about the best near-vertical axis, else ``inflate``.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import cv2
 import numpy as np
@@ -47,6 +47,9 @@ from scipy import ndimage, sparse
 from scipy.sparse.linalg import spsolve
 
 from ..errors import InputError
+
+if TYPE_CHECKING:
+    from .shading import Light
 
 __all__ = ["SHAPES", "ShapeChoice", "ShapeDepth", "choose_shape", "shape_depth", "inflate_silhouette",
            "revolve_profile", "largest_outline", "box_outline", "box_edges", "box_outline_edges"]
@@ -108,6 +111,9 @@ class ShapeChoice:
     fallback : str
         The sheets' prior a ``cuboid`` falls back to when no box covers the
         mask well enough.
+    light : Light or None
+        The photo's light read off a solid's surfaces
+        (:mod:`~marionette.target.shading`); None when not relit.
     """
 
     name: str
@@ -120,6 +126,7 @@ class ShapeChoice:
     solid_iou: float | None = None
     pitch: float | None = None
     fallback: str = "extrude"
+    light: Light | None = None
 
     def describe(self) -> str:
         """One line for ``--verbose``."""
@@ -127,6 +134,9 @@ class ShapeChoice:
         box = "" if self.solid_iou is None else f"; rebuilt as a solid covering {100 * self.solid_iou:.0f} %"
         if self.pitch is not None:
             box += f", its axis leaning {self.pitch:.1f}° towards the camera"
+        if self.light is not None:
+            x, y, z = self.light.direction
+            box += f"; relit (light towards ({x:.2f}, {y:.2f}, {z:.2f}), ambient {self.light.ambient:.2f})"
         return (f"shape prior {self.name} ({how}, confidence {self.confidence:.2f}): outline a {self.corners}-corner "
                 f"polygon at IoU {self.polygon_iou:.3f}, {100 * self.symmetry:.0f} % mirror-symmetric{box}")
 
@@ -136,7 +146,7 @@ class ShapeChoice:
                 "polygon_iou": round(self.polygon_iou, 4), "corners": self.corners,
                 "symmetry": round(self.symmetry, 4),
                 "solid_iou": None if self.solid_iou is None else round(self.solid_iou, 4),
-                "pitch": self.pitch}
+                "pitch": self.pitch, "light": None if self.light is None else self.light.as_dict()}
 
 
 def largest_outline(mask: np.ndarray) -> np.ndarray:
