@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 
 from marionette.errors import InputError
+from marionette.target.lift import lift_image
 from marionette.target.shapes import SHAPES, choose_shape, shape_depth
 
 
@@ -30,8 +31,13 @@ def test_a_rectangle_and_a_box_seen_at_an_angle_are_boxes_other_polygons_extrude
     assert choice.confidence > 0.97
     hexagon = polygon_mask([(20, 40), (70, 25), (140, 35), (140, 95), (70, 108), (20, 92)])
     assert choose_shape(hexagon).name == "cuboid"
-    # A pentagon (a house's gable end) is no box: pushed straight back.
-    assert choose_shape(polygon_mask([(30, 60), (80, 20), (130, 60), (130, 110), (30, 110)])).name == "extrude"
+    # A pentagon may be a box whose hexagon lost a corner to a straight line, but a house's gable end is
+    # none: no box explains it, and the lift pushes it straight back.
+    gable = polygon_mask([(30, 60), (80, 20), (130, 60), (130, 110), (30, 110)])
+    choice = choose_shape(gable)
+    assert choice.name == "cuboid" and choice.fallback == "extrude"
+    photo = np.dstack([np.full(gable.shape + (3,), 150, np.uint8), gable.astype(np.uint8) * 255])
+    assert lift_image(photo).shape.name == "extrude"
 
 
 def test_round_symmetric_outlines_are_revolved_and_asymmetric_ones_inflated():

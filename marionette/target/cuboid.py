@@ -28,6 +28,7 @@ from scipy import ndimage
 from scipy.optimize import least_squares
 
 from ..camera import Camera
+from ..errors import InputError
 from ..gaussians import Gaussians
 from ..geometry import axis_angle_to_matrix, matrix_to_quaternion
 from ._solid import FLATNESS, MIN_VIEW_COSINE, OVERLAP, blur_level, project, sample_spacing
@@ -54,6 +55,11 @@ _SIZE_PRIOR = 3.0
 _STEPS = (1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 0.05, 0.05)
 # Robust scale of the outline residuals (pixels): what sticks out of the box (a handle) does not pull it.
 _ROBUST_PX = 1.5
+# A five-corner outline is a box's only when a box explains it this well (a house's gable end is none).
+_PENTAGON_FIT = 0.97
+# No corner of a box comes nearer the camera than this share of its centre's depth (else the fit explained
+# the outline by a box stretched towards the lens, e.g. a house's gable end as a tunnel seen end on).
+_NEAREST = 0.25
 # Across a face's edge row the Gaussians are narrower (their alpha past the edge would grow the silhouette).
 _EDGE_OVERLAP = 0.4
 
@@ -135,7 +141,8 @@ def fit_cuboid(mask: np.ndarray, camera: Camera, depth: float) -> Cuboid | None:
     From each of a few starts (:func:`_starts`), fits its turn, size and place across the image in the
     perspective camera: the projected outline onto the mask's (robust least squares of the distances both
     ways); the one that covers the mask best is kept (the first that covers ``_GOOD_FIT`` of it ends the
-    search). Its ``iou`` says how well; None when the outline is not a box's (4 or 6 corners).
+    search). Its ``iou`` says how well; None when the outline is not a box's (4 to 6 corners; five only when a
+    box covers ``_PENTAGON_FIT`` of it).
     """
     mask = np.asarray(mask, dtype=bool)
     corners = box_outline(mask)
@@ -175,10 +182,14 @@ def fit_cuboid(mask: np.ndarray, camera: Camera, depth: float) -> Cuboid | None:
                             max_nfev=100)
         found = box(fit.x)
         found = Cuboid(found.centre, found.axes, found.half, _iou(_fill(_hull(found, camera), mask.shape), mask))
+        if found.corners()[:, 2].min() < _NEAREST * found.centre[2]:  # a tunnel reaching to the lens, no box
+            continue
         if best is None or found.iou > best.iou + _BETTER_START:
             best = found
         if best.iou >= _GOOD_FIT:  # the outline's own reading fits: no need to look further
             break
+    if best is not None and len(corners) == 5 and best.iou < _PENTAGON_FIT:
+        return None
     return best
 
 
@@ -247,7 +258,10 @@ def cuboid_surfels(cuboid: Cuboid, image: np.ndarray, mask: np.ndarray, camera: 
         colours[index] = seen[owner].sample(uv[:, 0], uv[:, 1], level).reshape(
             *points.shape[:2], 3)
     if any(c is None for c in colours):  # faces nobody sees: quilted from the best-seen face
-        best = int(np.argmax([cosines[i] * np.prod(grids[i][0].shape[:2]) for i in range(6)]))
+        coloured = [i for i in range(6) if colours[i] is not None]
+        if not coloured:
+            raise InputError("the box fitted to the target's outline shows none of its faces to the camera")
+        best = max(coloured, key=lambda i: cosines[i] * np.prod(grids[i][0].shape[:2]))
         rng = np.random.default_rng(0)
         for index in range(6):
             if colours[index] is None:

@@ -26,7 +26,7 @@ a solid of revolution about an axis that may lean towards the camera
 (:mod:`.revolution`), its profile from :func:`revolve_profile`.
 
 :func:`choose_shape` picks one from the silhouette alone: ``cuboid`` when
-the outline has a box's 4 or 6 corners (:func:`box_outline`; where no box
+the outline has a box's 4, 5 or 6 corners (:func:`box_outline`; where no box
 fits it, the lift falls back to the sheets' choice), ``extrude`` when it is
 another polygon of at most ``_MAX_CORNERS`` corners with straight sides (it
 fits within ``_POLYGON_TOLERANCE`` of the object's size, and nine tenths of
@@ -221,7 +221,7 @@ def choose_shape(mask: np.ndarray, shape: str = "auto") -> ShapeChoice:
     column, tilt, symmetry = _mirror_axis(mask)
     filled = iou >= _MIN_POLYGON_IOU and solidity >= _MIN_SOLIDITY
     polygonal = straight and corners <= _MAX_CORNERS and filled
-    # A box's outline has 4 or 6 corners (perspective may bow its sides past the straightness test; a small
+    # A box's outline has 4 to 6 corners (perspective may bow its sides past the straightness test; a small
     # box's pixel steps may add corners at the finest tolerance, but then its sides are straight).
     box_like = filled and (corners <= 6 or polygonal) and box_outline(mask) is not None
     sheets = "extrude" if polygonal else "revolve" if symmetry >= _MIN_SYMMETRY else "inflate"
@@ -334,14 +334,17 @@ def _extrude(mask: np.ndarray) -> np.ndarray:
 
 
 def box_outline(mask: np.ndarray) -> np.ndarray | None:
-    """The corners (6, 2) or (4, 2) of a box's outline in the (H, W) bool mask, pixels; None if it has neither."""
+    """The corners (6|5|4, 2) of a box's outline in the (H, W) bool mask, pixels; None if it has none of these.
+
+    Five: a hexagon one of whose corners lies nearly on a straight line (an edge seen almost end on).
+    """
     outline = largest_outline(mask)
     tolerance = _tolerance(mask)
     for scale in (1.0, 1.5, 2.0):  # a small box's pixel steps may add a corner at the finest tolerance
         polygon = cv2.approxPolyDP(outline, scale * tolerance, True)
         if len(polygon) <= 6:
             break
-    return polygon[:, 0].astype(np.float64) if len(polygon) in (4, 6) else None
+    return polygon[:, 0].astype(np.float64) if len(polygon) in (4, 5, 6) else None
 
 
 def box_edges(corners: np.ndarray) -> np.ndarray | None:
@@ -391,11 +394,13 @@ def box_edges(corners: np.ndarray) -> np.ndarray | None:
 
 
 def box_outline_edges(mask: np.ndarray, corners: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """(axes (3, 3) rows, half-lengths (3,) in pixels) of the box an outline's corners (6|4, 2) show, or None.
+    """(axes (3, 3) rows, half-lengths (3,) in pixels) of the box an outline's corners (6|5|4, 2) show, or None.
 
     Read orthographically: a hexagon by :func:`box_edges`; a rectangle (the (H, W) bool ``mask``'s) as a box
-    seen square on, as deep as its shorter side (what an extrusion assumes).
+    seen square on, as deep as its shorter side (what an extrusion assumes). Five corners are not read (None).
     """
+    if len(corners) == 5:
+        return None
     if len(corners) == 6:
         edges = box_edges(corners)
         if edges is None:
