@@ -505,7 +505,7 @@ Motion = Annotated[str, typer.Option(
 TargetDepth = Annotated[Optional[Path], typer.Option(
     help="Depth map of the photo (16-bit PNG in mm, or .npy) to shape it.", rich_help_panel=TARGET)]
 TargetShape = Annotated[str, typer.Option(
-    "--shape", help="Shape prior: auto, cuboid (boxes), revolve (pots), extrude, inflate.",
+    "--shape", help="Shape: auto, cuboid (box), revolve (pot), mirror (car), extrude, inflate",
     rich_help_panel=TARGET)]
 Polish = Annotated[int, typer.Option(
     help="Steps fitting the lifted photo's colours to it (sharper; 0: off).", rich_help_panel=TARGET)]

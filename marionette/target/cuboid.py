@@ -120,12 +120,12 @@ def _iou(a: np.ndarray, b: np.ndarray) -> float:
     return float((a & b).sum() / max((a | b).sum(), 1))
 
 
-def _starts(mask: np.ndarray, corners: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+def _starts(mask: np.ndarray, corners: np.ndarray | None) -> list[tuple[np.ndarray, np.ndarray]]:
     """(axes (3, 3) rows, half-lengths (3,) pixels) to start a box's fit from: the outline's orthographic
     reading when it has one, then boxes turned 0-60° and seen level or from above, as large as the outline
     (a box seen square on, or under strong perspective, is not read right orthographically)."""
     starts = []
-    read = box_outline_edges(mask, corners)
+    read = None if corners is None else box_outline_edges(mask, corners)
     if read is not None:
         starts.append(read)
     _, _, w, h = cv2.boundingRect(mask.astype(np.uint8))
@@ -135,18 +135,19 @@ def _starts(mask: np.ndarray, corners: np.ndarray) -> list[tuple[np.ndarray, np.
     return starts
 
 
-def fit_cuboid(mask: np.ndarray, camera: Camera, depth: float) -> Cuboid | None:
+def fit_cuboid(mask: np.ndarray, camera: Camera, depth: float, any_outline: bool = False) -> Cuboid | None:
     """The box whose projection covers the (H, W) bool mask, its centre ``depth`` away; None if none is seen.
 
     From each of a few starts (:func:`_starts`), fits its turn, size and place across the image in the
     perspective camera: the projected outline onto the mask's (robust least squares of the distances both
     ways); the one that covers the mask best is kept (the first that covers ``_GOOD_FIT`` of it ends the
     search). Its ``iou`` says how well; None when the outline is not a box's (4 to 6 corners; five only when a
-    box covers ``_PENTAGON_FIT`` of it).
+    box covers ``_PENTAGON_FIT`` of it). ``any_outline``: fit whatever the outline, from generic starts when it
+    shows no box's corners (the box round an object).
     """
     mask = np.asarray(mask, dtype=bool)
     corners = box_outline(mask)
-    if corners is None:
+    if corners is None and not any_outline:
         return None
     f = 0.5 * (camera.fx + camera.fy)
     v, u = np.nonzero(mask)
@@ -188,7 +189,7 @@ def fit_cuboid(mask: np.ndarray, camera: Camera, depth: float) -> Cuboid | None:
             best = found
         if best.iou >= _GOOD_FIT:  # the outline's own reading fits: no need to look further
             break
-    if best is not None and len(corners) == 5 and best.iou < _PENTAGON_FIT:
+    if best is not None and corners is not None and len(corners) == 5 and best.iou < _PENTAGON_FIT:
         return None
     return best
 

@@ -6,8 +6,9 @@ so the default is geometric: a shape prior chosen from the silhouette
 and its closed surface is sampled by area into flat Gaussians
 (:mod:`.surfels`), one on each visible pixel's ray where the surface faces
 the camera, so the reference view reproduces the image. A box or a pot is
-rebuilt as a solid instead, each surface textured from where the photo shows
-it (:mod:`.cuboid`, :mod:`.revolution`) and lit as the photo was lit
+rebuilt as a solid instead, and so is a mirror-symmetric object seen at an
+angle (a car), each surface textured from where the photo shows it
+(:mod:`.cuboid`, :mod:`.revolution`, :mod:`.mirror`) and lit as the photo was lit
 (:mod:`.shading`).
 """
 
@@ -25,6 +26,7 @@ from ..errors import InputError
 from ..gaussians import Gaussians
 from ..segment import grabcut_mask, salient_mask
 from .cuboid import MIN_BOX_IOU, cuboid_surfels, fit_cuboid
+from .mirror import MIN_HULL_IOU, fit_mirror_hull, mirror_surfels
 from .polish import polish_reference
 from .revolution import MIN_REVOLUTION_IOU, fit_revolution, revolution_surfels
 from .shading import MIN_ALPHA, Light, deshade, estimate_light, normal_map, shaded_sh
@@ -249,11 +251,12 @@ def _lit(surfels: Callable[[np.ndarray], tuple[Gaussians, np.ndarray]], image: n
 
 def _solid(choice: ShapeChoice, image: np.ndarray, mask: np.ndarray, camera: Camera, depth: float,
            options: LiftOptions) -> tuple[ShapeChoice, tuple[Gaussians, np.ndarray, np.ndarray] | None]:
-    """The object rebuilt as a box or a solid of revolution.
+    """The object rebuilt as a box, a solid of revolution or a mirror-symmetric solid.
 
     Returns the choice with the fit's measurements (a ``cuboid`` no box covers well enough becomes its
-    fallback, which may be a solid of revolution), and the solid, or None for sheets: (Gaussians, their
-    pixels (N, 2), (H, W) bool pixels left to sheets: a handle, a spout).
+    fallback, which may be a solid of revolution; a round outline no solid of revolution explains may be a
+    mirror-symmetric object seen at an angle, ``mirror``), and the solid, or None for sheets: (Gaussians,
+    their pixels (N, 2), (H, W) bool pixels left to sheets: a handle, a spout).
     """
     radius_px = pixel_radius(mask)
     if choice.name == "cuboid":
@@ -277,6 +280,18 @@ def _solid(choice: ShapeChoice, image: np.ndarray, mask: np.ndarray, camera: Cam
                 camera, options)
             return (replace(choice, solid_iou=body.iou, pitch=body.pitch, light=light),
                     (gaussians, pixel_of, pieces >= 2))
+    if choice.name in ("revolve", "inflate", "mirror") and options.thickness == 1.0:
+        hull = fit_mirror_hull(mask, camera, depth)
+        if hull is not None and (hull.iou >= MIN_HULL_IOU or choice.forced):
+            gaussians, pixel_of, light = _lit(lambda photo: mirror_surfels(
+                hull, photo, mask, camera, options.stride, options.opacity, radius_px), image, mask, camera, options)
+            return (replace(choice, name="mirror", solid_iou=hull.iou, light=light),
+                    (gaussians, pixel_of, np.zeros(mask.shape, bool)))
+        if choice.forced and choice.name == "mirror":
+            raise InputError("--shape mirror: no box round the target's outline shows two upright sides to carve "
+                             "it from")
+    if choice.name == "mirror":
+        choice = replace(choice, name=choice.fallback)
     return choice, None
 
 
@@ -307,9 +322,9 @@ def lift_image(image: np.ndarray, *, mask: np.ndarray | None = None, camera: Cam
     if not mask.any():
         raise InputError("target mask is empty")
     choice = choose_shape(mask, options.shape)
-    if choice.name == "cuboid" and (not options.solids or depth_map is not None):
+    if choice.name in ("cuboid", "mirror") and (not options.solids or depth_map is not None):
         choice = replace(choice, name=choice.fallback)
-    sheets = replace(choice, name=choice.fallback) if choice.name == "cuboid" else choice
+    sheets = replace(choice, name=choice.fallback) if choice.name in ("cuboid", "mirror") else choice
     offset, relief, pieces = shape_depth(mask, sheets)  # (H, W) mid-surface offset, half-thickness (px), pieces
     offset, relief = offset * options.thickness, relief * options.thickness
     if camera is None and options.relative_depth is not None:

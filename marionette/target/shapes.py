@@ -23,7 +23,11 @@ do, or a rectangle. Lifts that keep to sheets (``LiftOptions.solids``
 False) take a box's hexagon as sheets too: each pixel's front and back where
 its ray enters and leaves the box. Likewise a ``revolve`` lift is rebuilt as
 a solid of revolution about an axis that may lean towards the camera
-(:mod:`.revolution`), its profile from :func:`revolve_profile`.
+(:mod:`.revolution`), its profile from :func:`revolve_profile`; where none
+explains the outline, a ``revolve`` or ``inflate`` lift tries the fifth,
+``mirror``: a mirror-symmetric object seen at an angle, carved out of the box
+round it (:mod:`.mirror`). :func:`choose_shape` never names it: the lift
+finds it (or ``--shape mirror`` asks for it).
 
 :func:`choose_shape` picks one from the silhouette alone: ``cuboid`` when
 the outline has a box's 4, 5 or 6 corners (:func:`box_outline`; where no box
@@ -55,7 +59,7 @@ __all__ = ["SHAPES", "ShapeChoice", "ShapeDepth", "choose_shape", "shape_depth",
            "revolve_profile", "largest_outline", "box_outline", "box_edges", "box_outline_edges"]
 
 #: Shape prior names accepted by :func:`half_thickness` (``"auto"`` is :func:`choose_shape`'s).
-SHAPES = ("inflate", "revolve", "extrude", "cuboid")
+SHAPES = ("inflate", "revolve", "extrude", "cuboid", "mirror")
 
 # A polygon approximates the outline within this share of sqrt(area) (at least _MIN_TOLERANCE px): a
 # circle needs 11 corners at this tolerance, a box seen at any angle at most 6 (a few more when small).
@@ -226,7 +230,7 @@ def choose_shape(mask: np.ndarray, shape: str = "auto") -> ShapeChoice:
     box_like = filled and (corners <= 6 or polygonal) and box_outline(mask) is not None
     sheets = "extrude" if polygonal else "revolve" if symmetry >= _MIN_SYMMETRY else "inflate"
     name = shape if shape != "auto" else "cuboid" if box_like else sheets
-    confidence = {"extrude": iou, "cuboid": iou, "revolve": symmetry,
+    confidence = {"extrude": iou, "cuboid": iou, "revolve": symmetry, "mirror": symmetry,
                   "inflate": 1.0 - max(iou if polygonal else 0.0, symmetry)}[name]
     return ShapeChoice(name, shape != "auto", float(np.clip(confidence, 0.0, 1.0)), iou, int(corners), symmetry,
                        (column, tilt), fallback=sheets if shape == "auto" else "extrude")
