@@ -280,7 +280,8 @@ def _solid(choice: ShapeChoice, image: np.ndarray, mask: np.ndarray, camera: Cam
                 camera, options)
             return (replace(choice, solid_iou=body.iou, pitch=body.pitch, light=light),
                     (gaussians, pixel_of, pieces >= 2))
-    if choice.name in ("revolve", "inflate", "mirror") and options.thickness == 1.0:
+    wanted = choice.name == "mirror" or (not choice.forced and choice.name in ("revolve", "inflate"))
+    if wanted and options.thickness == 1.0:
         hull = fit_mirror_hull(mask, camera, depth)
         if hull is not None and (hull.iou >= MIN_HULL_IOU or choice.forced):
             gaussians, pixel_of, light = _lit(lambda photo: mirror_surfels(
