@@ -9,7 +9,9 @@ outline are half ellipses and the profile read between them is shortened by
 ``cos p``. Any pitch's profile can bend to fit the outline, so among those
 that fit it about equally well the one whose top rim runs along an edge of
 the photo is taken, else the best fit (:func:`fit_revolution`; seen from
-above, as photos of such things are).
+above, as photos of such things are). The pitch chosen, each ring is scaled
+until the outline is as wide as the mask's on the row of the ring's widest
+points, which perspective puts rows away from its centre's.
 
 The closed surface (side and both end discs) is sampled on grids of flat
 Gaussians (:func:`revolution_surfels`) coloured, like a box's faces
@@ -91,9 +93,10 @@ class Revolution:
 
 
 def _build(radius_rows: np.ndarray, column: float, tilt: float, row0: float, pitch: float, camera: Camera,
-           depth: float, max_column: int) -> Revolution | None:
+           depth: float, max_column: int, at_widest: bool = True) -> Revolution | None:
     """The body whose outline has half-width ``radius_rows`` (H,) per image row, under ``pitch`` degrees
-    (``max_column``: the image's width)."""
+    (``max_column``: the image's width). ``at_widest`` False reads each ring's width at its centre's row (see
+    :func:`fit_revolution`)."""
     rows = np.nonzero(radius_rows > 0)[0]
     if len(rows) < 3:
         return None
@@ -129,10 +132,12 @@ def _build(radius_rows: np.ndarray, column: float, tilt: float, row0: float, pit
     heights = along - along[0]
     base = centre + along[0] * axis
     body = Revolution(base, axis, heights, radii * ring_depth / (0.5 * (camera.fx + camera.fy)), pitch=float(pitch))
-    # Perspective widens a near ring's outline past its radius: scale each ring until its row is as wide as
-    # the mask's (the end rings follow their neighbours).
-    row_of = np.clip(np.rint(ys).astype(int), rows[0], rows[-1])
+    # Perspective widens a near ring's outline past its radius: scale each ring until the outline is as wide
+    # as the mask's on the row of the ring's widest points (perspective puts them rows off its centre's; read
+    # at the centre's row, a ring would answer for a neighbour and the scales would swing into ribs). The end
+    # rings follow their neighbours.
     for _ in range(_WIDTH_STEPS):
+        row_of = np.clip(np.rint(_widest_rows(body, camera) if at_widest else ys).astype(int), rows[0], rows[-1])
         drawn = _outline_mask(body, camera, (len(radius_rows), max_column)).sum(axis=1) * 0.5
         ratio = np.clip(radius_rows[row_of] / np.maximum(drawn[row_of], 0.5), 0.7, 1.3)
         ratio[[0, -1]] = ratio[[1, -2]]
@@ -141,13 +146,24 @@ def _build(radius_rows: np.ndarray, column: float, tilt: float, row0: float, pit
     return body
 
 
-def _outline_mask(body: Revolution, camera: Camera, shape: tuple[int, int]) -> np.ndarray:
-    """(H, W) bool pixels the body covers: each pair of neighbouring rings' convex hull, filled."""
+def _rings(body: Revolution, camera: Camera) -> np.ndarray:
+    """(S, V, 2) the body's rings drawn in the camera, ``_RING_VERTICES`` points each."""
     across, depthwise = body.frame()
     angles = np.linspace(0.0, 2 * np.pi, _RING_VERTICES, endpoint=False)
     ring = np.cos(angles)[:, None] * across + np.sin(angles)[:, None] * depthwise  # (V, 3)
-    points = body.base + body.heights[:, None, None] * body.axis + body.radii[:, None, None] * ring  # (S, V, 3)
-    uv = project(points, camera)
+    return project(body.base + body.heights[:, None, None] * body.axis + body.radii[:, None, None] * ring, camera)
+
+
+def _widest_rows(body: Revolution, camera: Camera) -> np.ndarray:
+    """(S,) the image row of each ring's leftmost and rightmost points (their mean)."""
+    uv = _rings(body, camera)
+    index = np.arange(len(uv))
+    return 0.5 * (uv[index, np.argmin(uv[..., 0], axis=1), 1] + uv[index, np.argmax(uv[..., 0], axis=1), 1])
+
+
+def _outline_mask(body: Revolution, camera: Camera, shape: tuple[int, int]) -> np.ndarray:
+    """(H, W) bool pixels the body covers: each pair of neighbouring rings' convex hull, filled."""
+    uv = _rings(body, camera)
     out = np.zeros(shape, np.uint8)
     for k in range(len(uv) - 1):
         hull = cv2.convexHull(np.concatenate([uv[k], uv[k + 1]]).astype(np.float32))
@@ -203,7 +219,7 @@ def fit_revolution(mask: np.ndarray, radius_rows: np.ndarray, column: float, til
                                                               mode="nearest")
     candidates = []
     for pitch in _PITCHES:
-        body = _build(radius_rows, column, tilt, row0, float(pitch), camera, depth, mask.shape[1])
+        body = _build(radius_rows, column, tilt, row0, float(pitch), camera, depth, mask.shape[1], at_widest=False)
         if body is not None:
             drawn = _outline_mask(body, camera, mask.shape)
             candidates.append((float((drawn & mask).sum() / max((drawn | mask).sum(), 1)), body))
@@ -221,6 +237,11 @@ def fit_revolution(mask: np.ndarray, radius_rows: np.ndarray, column: float, til
         iou, body = near[int(np.argmax(rims))]
     else:
         iou, body = max(near, key=lambda candidate: candidate[0])
+    # The lean chosen, its rings are scaled where their outline is widest: no ribs round the body.
+    smooth = _build(radius_rows, column, tilt, row0, body.pitch, camera, depth, mask.shape[1])
+    if smooth is not None:
+        drawn = _outline_mask(smooth, camera, mask.shape)
+        iou, body = float((drawn & mask).sum() / max((drawn | mask).sum(), 1)), smooth
     return Revolution(body.base, body.axis, body.heights, body.radii, iou, body.pitch)
 
 
