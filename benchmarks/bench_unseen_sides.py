@@ -3,11 +3,11 @@
 1. Per shape. Synthetic objects of known 3D (``object_view``: box, box with a lid, squat can, vase, thin
    rod, a car-like shape mirror-symmetric about its long mid-plane), each with rich (checkered) and plain
    (one colour per face) textures, ``--seeds`` of each (sizes and textures vary with the seed) seen from
-   a random yaw (0-60°) and pitch (5-30°), 256x256, 60° field of view. Each photo is lifted in its true camera (``lift_image``, shape prior ``auto``), its centre at
-   the true depth, turned 45°, 90° and 180° about the object's own vertical axis and rendered, against the
-   object rendered so: silhouette IoU (alpha > 0.5), and masked PSNR of both images composed on grey and
-   blurred with σ = 3 px over the silhouettes' union (the colours in the right places, not texture no one
-   could know).
+   a random yaw (0-60°) and pitch (5-30°), 256x256, 60° field of view. Each photo is lifted in its true
+   camera (``lift_image``, shape prior ``auto``), its centre at the true depth, turned 45°, 90° and 180°
+   about the object's own vertical axis and rendered, against the object rendered so: silhouette IoU
+   (alpha > 0.5), and masked PSNR of both images composed on grey and blurred with σ = 3 px over the
+   silhouettes' union (the colours in the right places, not texture no one could know).
    Boxes and pots are relit (``--relight``, the default); the car-like shape is carved as ``mirror``.
 2. The independent box: a rich box tilted 25° towards the camera, from yaws 0, 20, 40, 60 (seeds 0-1),
    turned 0-90° about its vertical axis: the last third (60-90°), means of blurred PSNR and IoU.
@@ -17,6 +17,8 @@
 5. Photos the project was not tuned on: every image in ``../shared/data/images`` (skipped when absent)
    lifted as ``transfer`` lifts it and turned 0°, 45°, 90° and 180° about the vertical through its centre,
    one sheet per run: ``docs/images/unseen_sides_photos_<label>.png``, to be judged by eye.
+6. What the lift rebuilds (box, solid of revolution, mirror hull or sheets) over ``--views`` random views of
+   each object: yaw 0-90°, pitch 0-35°, field of view 30-70°, 192².
 
 ``--code DIR`` imports ``marionette`` from another checkout (the baseline); ``--save FILE`` keeps the
 figures, ``--baseline FILE`` adds them to the page as "before" (default: the saved run of commit 186e776,
@@ -121,6 +123,31 @@ def independent_box() -> dict:
     return {"iou": float(np.mean(ious)), "psnr": float(np.mean(psnrs)), "worst_psnr": float(np.min(psnrs))}
 
 
+def choices(views: int) -> dict[str, dict[str, int]]:
+    """{object: {shape lifted: count}} over ``views`` random views of each (yaw 0-90°, pitch 0-35°, field of
+    view 30-70°, random seed; 192²), as ``lift_image`` rebuilds them with the shape prior ``auto``."""
+    from collections import Counter
+
+    from marionette.synthetic import object_view
+    from marionette.target.lift import LiftOptions, lift_image
+
+    rng = np.random.default_rng(7)
+    out = {}
+    for obj in OBJECTS:
+        counts: Counter = Counter()
+        for _ in range(views):
+            yaw, pitch = rng.uniform(0, 90), rng.uniform(0, 35)
+            seed, fov = int(rng.integers(0, 50)), rng.uniform(30, 70)
+            photo, camera, centre = object_view(obj, yaw_deg=yaw, pitch_deg=pitch, size=(192, 192), seed=seed,
+                                                fov_deg=fov)
+            lifted = lift_image(photo, camera=camera, options=LiftOptions(depth=float(centre[2])))
+            shape = lifted.shape
+            sheets = shape.name in ("inflate", "extrude") or (shape.name == "revolve" and shape.pitch is None)
+            counts[f"{shape.name} sheets" if sheets else shape.name] += 1
+        out[obj] = dict(counts)
+    return out
+
+
 def lift_time(runs: int) -> float:
     from marionette.synthetic import render_object_image
     from marionette.target.lift import lift_image
@@ -168,7 +195,8 @@ def photo_sheet(label: str) -> Path | None:
 
 
 def demo_sheet(label: str) -> Path:
-    """The demo's result at the frames turned nearest 0°, 45° and 90°: ``docs/images/unseen_sides_demo_<label>.png``."""
+    """The demo's result at the frames turned nearest 0°, 45° and 90°: ``docs/images/unseen_sides_demo_<label>.png``.
+    """
     import tempfile
 
     import cv2
@@ -245,6 +273,14 @@ def report(after: dict, before: dict | None, label: str) -> str:
         if run:
             box = run["independent"]
             lines.append(f"| {name} | {box['iou']:.3f} | {box['psnr']:.2f} | {box['worst_psnr']:.2f} |")
+    lines += ["", "**What the lift rebuilds**, over random views of each object (yaw 0-90°, pitch 0-35°, field of "
+              "view 30-70°: `cuboid`, `revolve` and `mirror` solids where one explains the outline, else sheets)", "",
+              "| object | " + ("before | " if before and "choices" in before else "") + "after |",
+              "|---|" + ("---|" if before and "choices" in before else "") + "---|"]
+    for obj, counts in after["choices"].items():
+        was = (", ".join(f"{k} {v}" for k, v in sorted(before["choices"][obj].items())) + " | "
+               if before and "choices" in before else "")
+        lines.append(f"| {obj} | {was}{', '.join(f'{k} {v}' for k, v in sorted(counts.items()))} |")
     lines += ["", READING]
     lines += ["", f"**Lift time**, 512² box photo, median of runs: "
               + (f"before {before['lift_s']:.2f} s, " if before else "") + f"after {after['lift_s']:.2f} s.", "",
@@ -264,6 +300,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--runs", type=int, default=5)
+    parser.add_argument("--views", type=int, default=30, help="random views per object of what the lift rebuilds")
     parser.add_argument("--code", type=Path, help="import marionette from this checkout (a baseline)")
     parser.add_argument("--label", default="after")
     parser.add_argument("--save", type=Path)
@@ -273,7 +310,8 @@ def main() -> None:
     import cv2
 
     rows, sheet = per_shape(args.seeds)
-    run = {"rows": rows, "independent": independent_box(), "lift_s": lift_time(args.runs)}
+    run = {"rows": rows, "independent": independent_box(), "lift_s": lift_time(args.runs),
+           "choices": choices(args.views)}
     photo_sheet(args.label)
     demo_sheet(args.label)
     IMAGES.mkdir(parents=True, exist_ok=True)
