@@ -60,11 +60,12 @@ class MirrorHull:
     iou: float
 
     def reflect(self, points: np.ndarray) -> np.ndarray:
-        """(..., 3) points (or, with the centre at 0, directions) mirrored through the plane."""
+        """(..., 3) points mirrored through the plane."""
         axis = self.box.axes[self.plane]
         return points - 2.0 * ((points - self.box.centre) @ axis)[..., None] * axis
 
     def reflect_directions(self, directions: np.ndarray) -> np.ndarray:
+        """(..., 3) directions (normals) mirrored through the plane."""
         axis = self.box.axes[self.plane]
         return directions - 2.0 * (directions @ axis)[..., None] * axis
 

@@ -76,7 +76,8 @@ def _view_frames(dirs: np.ndarray) -> np.ndarray:
     light for every direction relative to its view: ``l(d) = frame(d)ᵀ · light``.
     """
     forward = dirs / np.linalg.norm(dirs, axis=-1, keepdims=True)
-    up = np.array([0.0, -1.0, 0.0]) - forward[..., 1:2] * -forward  # camera up, square to the view
+    camera_up = np.array([0.0, -1.0, 0.0])
+    up = camera_up - (forward @ camera_up)[..., None] * forward  # square to the view
     up = up / np.maximum(np.linalg.norm(up, axis=-1, keepdims=True), 1e-12)
     right = np.cross(forward, up)
     return np.stack([right, -up, forward], axis=-2)
