@@ -230,10 +230,11 @@ READING = (
     "camera): at 90° a box gains 5.2-9.0 dB over the lift before, the last third of the independent box's turn "
     "reaches 20.8 dB (issue 53's target 19.9). Cans and vases gain 0.1 IoU from an axis that leans as the photo "
     "shows (its lean read from the outline's ends and the top rim's edge, 10-18° off in some views of a vase's "
-    "narrow neck) and 3.6-8.8 dB (cans) and 2.2-3.8 dB (vases) at 90°: the vase's lean and, on a rich can, the "
-    "colours of its hidden half are what is left. The thin rod is now a box (IoU at 90° "
+    "narrow neck) and 2.8-8.8 dB (cans) and 2.8-3.8 dB (vases) at 90°: the vase's lean and, on a rich can, the "
+    "colours of its hidden half are what is left, and a rich pot's many colours sometimes put the light below "
+    "it, where it is taken for paint and the photo's colours are kept. The thin rod is now a box (IoU at 90° "
     "0.11 → 0.77). The car-like shape is carved from the photo and its mirror image (``mirror``): IoU at 90° "
-    "0.63 → 0.81, +2.1-2.6 dB; two views leave its cabin spread over the bonnet and its underside coloured "
+    "0.63 → 0.81, +1.5-1.9 dB; two views leave its cabin spread over the bonnet and its underside coloured "
     "from its nearest neighbours (the wheels' blue).")
 
 

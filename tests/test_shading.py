@@ -28,26 +28,38 @@ def light_beside(view: np.ndarray, light: Light) -> np.ndarray:
 
 
 def random_light(rng: np.random.Generator) -> Light:
-    """A light in front of the object (towards the camera, -z), anywhere within 60° of the view."""
-    polar, azimuth = np.radians(rng.uniform(10, 60)), rng.uniform(0, 2 * np.pi)
+    """A light in front of the object (towards the camera, -z), within 60° of the view and above it (y < 0:
+    the camera's y points down)."""
+    polar, azimuth = np.radians(rng.uniform(10, 60)), rng.uniform(np.pi, 2 * np.pi)
     direction = np.array([np.sin(polar) * np.cos(azimuth), np.sin(polar) * np.sin(azimuth), -np.cos(polar)])
     return Light(tuple(direction), float(rng.uniform(0.3, 0.7)))
 
 
-def test_the_light_is_read_from_a_textured_ball():
-    rng = np.random.default_rng(3)
-    size = 96
+def textured_ball(rng: np.random.Generator, light: Light, size: int = 96):
+    """A ball of one speckled material facing the camera, lit by ``light``: (image, normals, pixels)."""
     y, x = (np.mgrid[:size, :size] + 0.5 - size / 2) / (0.45 * size)
     pixels = x**2 + y**2 < 1
-    normals = np.stack([x, y, -np.sqrt(np.clip(1 - x**2 - y**2, 0, 1))], axis=-1)  # facing the camera
+    normals = np.stack([x, y, -np.sqrt(np.clip(1 - x**2 - y**2, 0, 1))], axis=-1)
+    albedo = rng.uniform(0.4, 0.9, (size, size, 1)) * rng.uniform(0.7, 1.0, 3)
+    image = np.clip(np.rint(255 * albedo * lambert(normals, light)[..., None]), 0, 255).astype(np.uint8)
+    return image, normals, pixels
+
+
+def test_the_light_is_read_from_a_textured_ball():
+    rng = np.random.default_rng(3)
     for _ in range(5):
         truth = random_light(rng)
-        albedo = rng.uniform(0.4, 0.9, (size, size, 1)) * rng.uniform(0.7, 1.0, 3)  # speckled, one material
-        image = np.clip(np.rint(255 * albedo * lambert(normals, truth)[..., None]), 0, 255).astype(np.uint8)
-        found = estimate_light(image, normals, pixels)
+        found = estimate_light(*textured_ball(rng, truth))
         assert found is not None
         angle = np.degrees(np.arccos(np.clip(np.dot(found.direction, truth.direction), -1, 1)))
         assert angle < 8.0 and abs(found.ambient - truth.ambient) < 0.12, (angle, found, truth)
+
+
+def test_brightness_that_only_a_light_from_below_explains_is_taken_for_paint():
+    rng = np.random.default_rng(4)
+    for direction in ([0.3, 0.6, -0.7], [-0.4, 0.4, -0.8], [0.0, 0.5, -0.85]):  # y down: below the camera
+        truth = Light(tuple(np.array(direction) / np.linalg.norm(direction)), 0.4)
+        assert estimate_light(*textured_ball(rng, truth)) is None
 
 
 def test_one_way_of_facing_tells_nothing_of_the_light():

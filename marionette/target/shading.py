@@ -10,11 +10,11 @@ term,
 ``l`` the unit direction towards the light. Light and ambient are fitted to the median brightness of the
 photo's pixels grouped by the way the surface faces there (the albedo is taken not to depend on it). Priors
 settle what one photo cannot tell (a box seen level shows two ways of facing): weak ones of light from above
-and in front, and of half the brightness ambient. The photo divided by that
-shading gives the albedo the surfaces are coloured from; each surfel then shows its albedo shaded for the
-direction it is seen from (degree-2 spherical harmonics), the light keeping its place relative to the view
-as a lamp beside a still camera would: the reference view shows the photo again, a face turned towards the
-light brightens.
+and in front, and of half the brightness ambient. A light found below is taken for faces painted apart, not
+lit apart, and the photo's colours are kept. Else the photo divided by the shading gives the albedo the
+surfaces are coloured from; each surfel then shows its albedo shaded for the direction it is seen from
+(degree-2 spherical harmonics), the light keeping its place relative to the view as a lamp beside a still
+camera would: the reference view shows the photo again, a face turned towards the light brightens.
 """
 
 from __future__ import annotations
@@ -36,6 +36,9 @@ __all__ = ["MIN_ALPHA", "Light", "estimate_light", "outward_normals", "normal_ma
 _PRIOR_DIRECTION = np.array([0.0, -1.0, -1.0]) / np.sqrt(2.0)
 _PRIOR_AMBIENT = 0.5
 _PRIOR_WEIGHT_DIRECTION, _PRIOR_WEIGHT_AMBIENT = 0.05, 0.2
+# A light found further below the camera's horizontal than this (the y of its direction, y down) is taken
+# for faces painted apart, not lit apart: the photo's colours are kept.
+_MAX_LIGHT_BELOW = 0.1
 # The ambient share is kept within these bounds: at the lower one a face in shadow is brightened 4x.
 _MIN_AMBIENT, _MAX_AMBIENT = 0.25, 1.0
 # Normals are grouped on a grid of this step; a group counts with at least this share of the pixels.
@@ -110,7 +113,8 @@ def estimate_light(image: np.ndarray, normals: np.ndarray, pixels: np.ndarray) -
     """The light that best explains the brightness of ``pixels`` by the way the surface faces there.
 
     image : (H, W, 3|4) uint8; normals : (H, W, 3) from :func:`normal_map`; pixels : (H, W) bool, those to
-    read. None when fewer than two directions of the surface are seen (nothing to compare).
+    read. None when fewer than two directions of the surface are seen (nothing to compare), or when the light
+    would come from below (the brightness is more likely paint than light).
     """
     seen = normals[pixels]
     brightness = np.log(np.maximum(image[..., :3][pixels].astype(np.float64) @ _LUMA, 1.0))
@@ -141,7 +145,10 @@ def estimate_light(image: np.ndarray, normals: np.ndarray, pixels: np.ndarray) -
              float(np.arctan2(_PRIOR_DIRECTION[1], _PRIOR_DIRECTION[0]))]
     x = least_squares(residuals, start, bounds=([-np.inf, _MIN_AMBIENT, 0.0, -4 * np.pi],
                                                 [np.inf, _MAX_AMBIENT, np.pi, 4 * np.pi])).x
-    return Light(tuple(float(v) for v in direction(x[2], x[3])), float(x[1]))
+    light = direction(x[2], x[3])
+    if light[1] > _MAX_LIGHT_BELOW:  # lit from below: more likely faces painted apart than a lamp on the floor
+        return None
+    return Light(tuple(float(v) for v in light), float(x[1]))
 
 
 def deshade(image: np.ndarray, normals: np.ndarray, alpha: np.ndarray, light: Light) -> tuple[np.ndarray, float]:
