@@ -1,7 +1,9 @@
-"""What the solids (:mod:`.cuboid`, :mod:`.revolution`) share: sampling density, surfel shape, texture blur."""
+"""What the solids (:mod:`.cuboid`, :mod:`.revolution`, :mod:`.mirror`) share: sampling density, surfel shape,
+texture blur, visibility."""
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from ..camera import Camera
@@ -39,3 +41,25 @@ def blur_level(cosine: np.ndarray) -> np.ndarray:
     for bound, value in _BLUR_BY_COSINE[::-1]:
         level = np.where(np.asarray(cosine) >= bound, value, level)
     return level
+
+
+def surface_zbuffer(points: np.ndarray, camera: Camera) -> np.ndarray:
+    """(H, W) nearest depth of a surface's (N, 3) sample points at the photo's pixels (inf where none falls);
+    pixels between samples take their neighbours' nearest depth. What lies behind it does not show."""
+    uv = project(points, camera)
+    col = np.clip(np.rint(uv[:, 0]).astype(int), 0, camera.width - 1)
+    row = np.clip(np.rint(uv[:, 1]).astype(int), 0, camera.height - 1)
+    zbuffer = np.full((camera.height, camera.width), np.inf)
+    np.minimum.at(zbuffer, (row, col), points[:, 2])
+    holes = np.isinf(zbuffer)
+    return np.where(holes, cv2.erode(np.where(holes, np.float32(3e38), zbuffer.astype(np.float32)),
+                                     np.ones((3, 3), np.uint8)), zbuffer)
+
+
+def surfel_frames(normals: np.ndarray) -> np.ndarray:
+    """(N, 3) unit normals → (N, 3, 3) rotations whose columns are two tangents and the normal (a flat
+    Gaussian's thin axis last)."""
+    helper = np.where(np.abs(normals[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    tangent = np.cross(normals, helper)
+    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
+    return np.stack([tangent, np.cross(normals, tangent), normals], axis=2)

@@ -18,6 +18,7 @@ import numpy as np
 from ..errors import InputError
 from ..gaussians import Gaussians, rgb_to_sh
 from ..geometry import matrix_to_quaternion
+from ._solid import surfel_frames
 
 __all__ = ["MESH_SUFFIXES", "is_mesh_file", "mesh_gaussians"]
 
@@ -67,11 +68,7 @@ def mesh_gaussians(path: str | Path, count: int = DEFAULT_SURFELS, seed: int = 0
     flip = np.diag([1.0, -1.0, -1.0])  # y-up, front +z → y down, z forward
     means = np.asarray(points, np.float64) @ flip
     normals = np.asarray(mesh.face_normals[faces], np.float64) @ flip
-    # A frame per surfel with its normal as the third axis: the Gaussian's flat direction.
-    helper = np.where(np.abs(normals[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-    tangent = np.cross(normals, helper)
-    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
-    frames = np.stack([tangent, np.cross(normals, tangent), normals], axis=2)  # (N, 3, 3) columns
+    frames = surfel_frames(normals)  # the normal as the third axis: the Gaussian's flat direction
     width = 0.6 * np.sqrt(mesh.area / count)
     log_scales = np.log(np.tile([width, width, width / 20], (len(points), 1)))
     rgb = colours

@@ -21,7 +21,7 @@ from scipy.spatial import cKDTree
 from ..camera import Camera
 from ..gaussians import Gaussians
 from ..geometry import matrix_to_quaternion
-from ._solid import FLATNESS, MIN_VIEW_COSINE, blur_level, project, sample_spacing
+from ._solid import FLATNESS, MIN_VIEW_COSINE, blur_level, project, sample_spacing, surface_zbuffer, surfel_frames
 from .cuboid import Cuboid, fit_cuboid
 from .shapes import largest_outline
 from .surfels import MaskedTexture
@@ -119,8 +119,8 @@ def fit_mirror_hull(mask: np.ndarray, camera: Camera, depth: float) -> MirrorHul
     cell = 2.0 * box.half / counts
     local = (verts - 1.0 + 0.5) * cell - box.half  # cell centres sit at (index + 0.5) · cell − half
     vertices = box.centre + local @ box.axes
-    iou = float((_outline(vertices, faces, camera, mask.shape) & mask).sum()
-                / max((_outline(vertices, faces, camera, mask.shape) | mask).sum(), 1))
+    drawn = _outline(vertices, faces, camera, mask.shape)
+    iou = float((drawn & mask).sum() / max((drawn | mask).sum(), 1))
     return MirrorHull(box, plane, vertices, np.ascontiguousarray(faces), iou)
 
 
@@ -139,15 +139,7 @@ def mirror_surfels(hull: MirrorHull, image: np.ndarray, mask: np.ndarray, camera
     points, face = trimesh.sample.sample_surface(mesh, count, seed=0)
     points = np.asarray(points, np.float64)
     normals = np.asarray(mesh.face_normals, np.float64)[np.asarray(face)]
-    # A z-buffer of the surface at the photo's pixels: what lies behind it does not show.
-    uv = project(points, camera)
-    col = np.clip(np.rint(uv[:, 0]).astype(int), 0, camera.width - 1)
-    row = np.clip(np.rint(uv[:, 1]).astype(int), 0, camera.height - 1)
-    zbuffer = np.full((camera.height, camera.width), np.inf, np.float32)
-    np.minimum.at(zbuffer, (row, col), points[:, 2].astype(np.float32))
-    holes = np.isinf(zbuffer)
-    zbuffer = np.where(holes, cv2.erode(np.where(holes, np.float32(3e38), zbuffer), np.ones((3, 3), np.uint8)),
-                       zbuffer)
+    zbuffer = surface_zbuffer(points, camera)
     slack = _DEPTH_SLACK * spacing
 
     def shown(p: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -169,10 +161,7 @@ def mirror_surfels(hull: MirrorHull, image: np.ndarray, mask: np.ndarray, camera
         colour[~known] = colour[known][nearest.reshape(int((~known).sum()), -1)].mean(axis=1)
     elif not known.any():
         colour[:] = texture.fallback
-    helper = np.where(np.abs(normals[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-    tangent = np.cross(normals, helper)
-    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
-    frames = np.stack([tangent, np.cross(normals, tangent), normals], axis=2)  # columns; the normal third
+    frames = surfel_frames(normals)
     c2w = np.linalg.inv(camera.world_to_camera)
     width = _RANDOM_OVERLAP * spacing
     scales = np.tile([width, width, FLATNESS * width], (count, 1))

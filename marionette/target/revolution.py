@@ -34,7 +34,7 @@ from scipy import ndimage
 from ..camera import Camera
 from ..gaussians import Gaussians
 from ..geometry import matrix_to_quaternion
-from ._solid import FLATNESS, MIN_VIEW_COSINE, OVERLAP, blur_level, project, sample_spacing
+from ._solid import FLATNESS, MIN_VIEW_COSINE, OVERLAP, blur_level, project, sample_spacing, surface_zbuffer
 from .surfels import MaskedTexture
 from .synthesis import fill_unseen, quilt
 
@@ -327,16 +327,7 @@ def revolution_surfels(body: Revolution, image: np.ndarray, pixels: np.ndarray, 
     spacing = sample_spacing(area, depth, camera, stride, int(pixels.sum()))
     grids = [g for g in (_side(body, spacing), _disc(body, spacing, True), _disc(body, spacing, False))
              if g is not None]
-    # A z-buffer of the surface at the photo's pixels: what lies behind it does not show.
-    every = np.concatenate([g.points.reshape(-1, 3) for g in grids])
-    uv = project(every, camera)
-    col = np.clip(np.rint(uv[:, 0]).astype(int), 0, camera.width - 1)
-    row = np.clip(np.rint(uv[:, 1]).astype(int), 0, camera.height - 1)
-    zbuffer = np.full((camera.height, camera.width), np.inf)
-    np.minimum.at(zbuffer, (row, col), every[:, 2])
-    holes = np.isinf(zbuffer)  # pixels between samples take their neighbours' nearest depth
-    zbuffer = np.where(holes, cv2.erode(np.where(holes, np.float32(3e38), zbuffer.astype(np.float32)),
-                                        np.ones((3, 3), np.uint8)), zbuffer)
+    zbuffer = surface_zbuffer(np.concatenate([g.points.reshape(-1, 3) for g in grids]), camera)
     texture = MaskedTexture(image[..., :3], pixels, radius_px)
     slack = _DEPTH_SLACK * spacing
     # The mirror across the view: through the axis, its normal the view's direction square to the axis.
