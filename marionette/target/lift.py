@@ -28,7 +28,7 @@ from ..segment import grabcut_mask, salient_mask
 from .cuboid import MIN_BOX_IOU, cuboid_surfels, fit_cuboid
 from .mirror import MIN_HULL_IOU, fit_mirror_hull, mirror_surfels
 from .polish import polish_reference
-from .revolution import MIN_REVOLUTION_IOU, fit_revolution, revolution_surfels
+from .revolution import MIN_REVOLUTION_IOU, Revolution, fit_revolution, revolution_surfels
 from .shading import MIN_ALPHA, Light, deshade, estimate_light, normal_map, shaded_sh
 from .shapes import SHAPES, ShapeChoice, choose_shape, inflate_silhouette, revolve_profile, shape_depth
 from .surfels import sample_surface
@@ -249,14 +249,28 @@ def _lit(surfels: Callable[[np.ndarray], tuple[Gaussians, np.ndarray]], image: n
     return gaussians.with_sh(shaded_sh(gaussians, gaussians.rgb / scale, light)), pixel_of, light
 
 
+def _attached_depth(body: Revolution, pieces: np.ndarray, camera: Camera) -> np.ndarray:
+    """(H, W) camera z of each appendage's pixels (``pieces`` >= 2): the body's axis on the median row where the
+    appendage meets the body (``pieces`` == 1); the body's pixels get the depth of its middle."""
+    middle = float((body.base + 0.5 * body.heights[-1] * body.axis)[2])
+    out = np.full(pieces.shape, middle)
+    near_body = ndimage.binary_dilation(pieces == 1, iterations=2)
+    for label in np.unique(pieces[pieces >= 2]):
+        piece = pieces == label
+        rows = np.nonzero(piece & near_body)[0]
+        out[piece] = body.axis_depth(camera, float(np.median(rows))) if len(rows) else middle
+    return out
+
+
 def _solid(choice: ShapeChoice, image: np.ndarray, mask: np.ndarray, camera: Camera, depth: float,
-           options: LiftOptions) -> tuple[ShapeChoice, tuple[Gaussians, np.ndarray, np.ndarray] | None]:
+           options: LiftOptions) -> tuple[ShapeChoice, tuple | None]:
     """The object rebuilt as a box, a solid of revolution or a mirror-symmetric solid.
 
     Returns the choice with the fit's measurements (a ``cuboid`` no box covers well enough becomes its
     fallback, which may be a solid of revolution; a round outline no solid of revolution explains may be a
     mirror-symmetric object seen at an angle, ``mirror``), and the solid, or None for sheets: (Gaussians,
-    their pixels (N, 2), (H, W) bool pixels left to sheets: a handle, a spout).
+    their pixels (N, 2), (H, W) bool pixels left to sheets: a handle, a spout, and the depth (H, W or scalar)
+    those sheets move by to meet the solid).
     """
     radius_px = pixel_radius(mask)
     if choice.name == "cuboid":
@@ -266,7 +280,7 @@ def _solid(choice: ShapeChoice, image: np.ndarray, mask: np.ndarray, camera: Cam
             box = replace(box, half=box.half * np.where(depthwise, options.thickness, 1.0))
             gaussians, pixel_of, light = _lit(lambda photo: cuboid_surfels(
                 box, photo, mask, camera, options.stride, options.opacity, radius_px), image, mask, camera, options)
-            return replace(choice, solid_iou=box.iou, light=light), (gaussians, pixel_of, np.zeros(mask.shape, bool))
+            return replace(choice, solid_iou=box.iou, light=light), (gaussians, pixel_of, np.zeros(mask.shape, bool), 0.0)
         if choice.forced:
             raise InputError("--shape cuboid: the target's outline shows no box (neither a box's hexagon nor a "
                              "rectangle)")
@@ -279,7 +293,7 @@ def _solid(choice: ShapeChoice, image: np.ndarray, mask: np.ndarray, camera: Cam
                 body, photo, pieces == 1, camera, options.stride, options.opacity, radius_px), image, pieces == 1,
                 camera, options)
             return (replace(choice, solid_iou=body.iou, pitch=body.pitch, light=light),
-                    (gaussians, pixel_of, pieces >= 2))
+                    (gaussians, pixel_of, pieces >= 2, _attached_depth(body, pieces, camera) - depth))
     wanted = choice.name == "mirror" or (not choice.forced and choice.name in ("revolve", "inflate"))
     if wanted and options.thickness == 1.0:
         hull = fit_mirror_hull(mask, camera, depth)
@@ -287,7 +301,7 @@ def _solid(choice: ShapeChoice, image: np.ndarray, mask: np.ndarray, camera: Cam
             gaussians, pixel_of, light = _lit(lambda photo: mirror_surfels(
                 hull, photo, mask, camera, options.stride, options.opacity, radius_px), image, mask, camera, options)
             return (replace(choice, name="mirror", solid_iou=hull.iou, light=light),
-                    (gaussians, pixel_of, np.zeros(mask.shape, bool)))
+                    (gaussians, pixel_of, np.zeros(mask.shape, bool), 0.0))
         if choice.forced and choice.name == "mirror":
             raise InputError("--shape mirror: no box round the target's outline shows two upright sides to carve "
                              "it from")
@@ -348,10 +362,10 @@ def lift_image(image: np.ndarray, *, mask: np.ndarray | None = None, camera: Cam
     if options.solids and depth_map is None:
         choice, solid = _solid(choice, image, mask, camera, z0, options)
         if solid is not None:
-            gaussians, pixel_of, appendages = solid
-            if appendages.any():  # a handle or a spout: sheets of its own
+            gaussians, pixel_of, appendages, shift = solid
+            if appendages.any():  # a handle or a spout: sheets of its own, at the depth where they meet the body
                 cells = np.where(appendages, pieces, 0)[np.ix_(centre_v, centre_u)]
-                more, more_pixels = sample_surface(image, mask, cells, mid[np.ix_(centre_v, centre_u)],
+                more, more_pixels = sample_surface(image, mask, cells, (mid + shift)[np.ix_(centre_v, centre_u)],
                                                    half[np.ix_(centre_v, centre_u)], camera, s, options.opacity,
                                                    pixel_radius(mask))
                 gaussians = Gaussians.concatenate([gaussians, more])

@@ -7,9 +7,9 @@ the image plane by the angle the outline's ends show: under a pitch ``p`` a
 ring of radius ``r`` projects to an ellipse ``r sin p`` tall, so the ends of the
 outline are half ellipses and the profile read between them is shortened by
 ``cos p``. Any pitch's profile can bend to fit the outline, so among those
-that fit it about equally well the one whose top rim runs along an edge of
-the photo is taken, else the best fit (:func:`fit_revolution`; seen from
-above, as photos of such things are). The pitch chosen, each ring is scaled
+that fit it about equally well the one with a ring (the top rim, a band of
+paint, a step) that runs along an edge of the photo is taken, else the best
+fit (:func:`fit_revolution`). The pitch chosen, each ring is scaled
 until the outline is as wide as the mask's on the row of the ring's widest
 points, which perspective puts rows away from its centre's.
 
@@ -34,7 +34,7 @@ from scipy import ndimage
 from ..camera import Camera
 from ..gaussians import Gaussians
 from ..geometry import matrix_to_quaternion
-from ._solid import FLATNESS, MIN_VIEW_COSINE, OVERLAP, blur_level, project, sample_spacing, surface_zbuffer
+from ._solid import FLATNESS, OVERLAP, blur_level, project, sample_spacing, surface_zbuffer
 from .surfels import MaskedTexture
 from .synthesis import fill_unseen, quilt
 
@@ -45,13 +45,13 @@ MIN_REVOLUTION_IOU = 0.9
 
 # Pitches tried (degrees): how far the axis leans out of the image plane, its top towards the camera.
 _PITCHES = np.arange(0.0, 45.1, 2.5)
-# Pitches whose outline covers the mask within this IoU of the best one's are told apart by the top rim.
+# Pitches whose outline covers the mask within this IoU of the best one's are told apart by their rings.
 _IOU_TOLERANCE = 0.01
-# The rim's edge: the photo blurred this much (px), sampled at this many points along the rim's near half,
+# A ring's edge: the photo blurred this much (px), sampled at this many points along the ring's near half,
 # and taken when it is this many times the object's median gradient.
 _EDGE_BLUR = 1.5
-_RIM_SAMPLES = 64
-_RIM_CONTRAST = 4.0
+_RING_SAMPLES = 64
+_RING_CONTRAST = 2.5
 # Running median of the profile over this share of its rows.
 _PROFILE_MEDIAN = 0.1
 # Rounds of scaling the rings until the outline's rows are as wide as the mask's.
@@ -60,6 +60,10 @@ _WIDTH_STEPS = 3
 _RATIO_SMOOTHING = 2.0
 # Vertices of each ring's ellipse when the body's outline is drawn.
 _RING_VERTICES = 96
+# Samples seen past ~66° (cosine) take no colour from the photo: there a ring is a smear of its neighbours
+# (and of a ribbed body's ledges) that, turned to face the camera, would print as a band; they are filled as
+# unseen ones are.
+_MIN_COLOUR_COSINE = 0.4
 # A sample shows in the photo when it lies within this many spacings of the nearest surface at its pixel.
 _DEPTH_SLACK = 1.5
 
@@ -84,6 +88,12 @@ class Revolution:
     radii: np.ndarray
     iou: float = 0.0
     pitch: float = 0.0
+
+    def axis_depth(self, camera: Camera, row: float) -> float:
+        """Camera z of the axis where it crosses image row ``row``'s plane of sight."""
+        k = (row - camera.cy) / camera.fy
+        along = (k * self.base[2] - self.base[1]) / (self.axis[1] - k * self.axis[2])
+        return float(self.base[2] + along * self.axis[2])
 
     def frame(self) -> tuple[np.ndarray, np.ndarray]:
         """(2, 3) two unit vectors across the axis: the first lies in the image plane."""
@@ -129,9 +139,13 @@ def _build(radius_rows: np.ndarray, column: float, tilt: float, row0: float, pit
     k = (ys - camera.cy) / camera.fy
     along = (centre[1] - k * centre[2]) / (k * axis[2] - axis[1])
     ring_depth = centre[2] + along * axis[2]
-    heights = along - along[0]
-    base = centre + along[0] * axis
-    body = Revolution(base, axis, heights, radii * ring_depth / (0.5 * (camera.fx + camera.fy)), pitch=float(pitch))
+    # Perspective puts the axis' middle off the rows' middle: scaled about the camera (its outline unchanged),
+    # the body has its middle, not that row's point, at ``depth``.
+    scale = depth / (centre[2] + 0.5 * (along[0] + along[-1]) * axis[2])
+    heights = (along - along[0]) * scale
+    base = (centre + along[0] * axis) * scale
+    body = Revolution(base, axis, heights, radii * ring_depth * scale / (0.5 * (camera.fx + camera.fy)),
+                      pitch=float(pitch))
     # Perspective widens a near ring's outline past its radius: scale each ring until the outline is as wide
     # as the mask's on the row of the ring's widest points (perspective puts them rows off its centre's; read
     # at the centre's row, a ring would answer for a neighbour and the scales would swing into ribs). The end
@@ -171,27 +185,31 @@ def _outline_mask(body: Revolution, camera: Camera, shape: tuple[int, int]) -> n
     return out.astype(bool)
 
 
-def _rim_edge(body: Revolution, camera: Camera, gradient: np.ndarray, interior: np.ndarray) -> float:
-    """Mean strength of the photo's edge across the near half of the body's top rim, where the rim lies on
-    ``interior`` pixels (0 where less than half of it does: a rim seen edge-on is the outline itself).
+def _ring_edge(body: Revolution, camera: Camera, gradient: np.ndarray, interior: np.ndarray) -> float:
+    """Strength of the photo's edge along the body's best-marked ring: the mean, over a ring's near half, of
+    the gradient across it, for the ring (top rim, band of paint, step) where that is largest. Rings less
+    than half on ``interior`` pixels score 0 (a rim seen edge-on is the outline itself).
 
-    ``gradient`` (H, W, 2): the photo's x and y gradient; only its part across the rim counts, so a
-    straight edge the rim's ellipse happens to cross (a band of paint, a shading step) scores little.
+    ``gradient`` (H, W, 2): the photo's x and y gradient; only its part across the ring counts, so a
+    straight edge a ring's ellipse happens to cross scores little. Every ring of the true body is an ellipse
+    of the same lean, so any edge that runs round the body (a rim, a label's edge) tells the lean.
     """
     across, depthwise = body.frame()
-    angles = np.linspace(0.0, np.pi, _RIM_SAMPLES)
+    angles = np.linspace(0.0, np.pi, _RING_SAMPLES)
     near = -np.sign(depthwise[2]) if depthwise[2] != 0 else 1.0  # depthwise points away from or to the camera
     ring = np.cos(angles)[:, None] * across + near * np.sin(angles)[:, None] * depthwise
-    uv = project(body.base + body.heights[-1] * body.axis + body.radii[-1] * ring, camera)
-    tangent = np.gradient(uv, axis=0)
-    normal = np.stack([-tangent[:, 1], tangent[:, 0]], axis=1) / np.maximum(
-        np.linalg.norm(tangent, axis=1, keepdims=True), 1e-9)
-    col, row = np.rint(uv[:, 0]).astype(int), np.rint(uv[:, 1]).astype(int)
-    on = (col >= 0) & (col < camera.width) & (row >= 0) & (row < camera.height)
-    on[on] = interior[row[on], col[on]]
-    if on.mean() < 0.5:
-        return 0.0
-    return float(np.abs((gradient[row[on], col[on]] * normal[on]).sum(axis=1)).mean())
+    best = 0.0
+    for height, radius in zip(body.heights, body.radii):
+        uv = project(body.base + height * body.axis + radius * ring, camera)
+        tangent = np.gradient(uv, axis=0)
+        normal = np.stack([-tangent[:, 1], tangent[:, 0]], axis=1) / np.maximum(
+            np.linalg.norm(tangent, axis=1, keepdims=True), 1e-9)
+        col, row = np.rint(uv[:, 0]).astype(int), np.rint(uv[:, 1]).astype(int)
+        on = (col >= 0) & (col < camera.width) & (row >= 0) & (row < camera.height)
+        on[on] = interior[row[on], col[on]]
+        if on.mean() >= 0.5:
+            best = max(best, float(np.abs((gradient[row[on], col[on]] * normal[on]).sum(axis=1)).mean()))
+    return best
 
 
 def fit_revolution(mask: np.ndarray, radius_rows: np.ndarray, column: float, tilt: float, camera: Camera,
@@ -202,9 +220,9 @@ def fit_revolution(mask: np.ndarray, radius_rows: np.ndarray, column: float, til
     mask's centroid row, ``tilt`` columns per row); ``depth``: the axis' middle's distance from the camera;
     ``image`` (H, W, 3|4) uint8: the photo. Under any pitch the profile can bend to fit the outline's ends (a
     flat lid seen from above, or a dome seen level), so the outline only narrows the pitches down to those
-    within ``_IOU_TOLERANCE`` of the best; of those, the one whose top rim's near half runs along the
-    strongest edge inside the object (where a lid or an opening meets the side) is taken, or, when no rim
-    shows (no such edge ``_RIM_CONTRAST`` times the object's median gradient), the best outline's.
+    within ``_IOU_TOLERANCE`` of the best; of those, the one with a ring whose near half runs along the
+    strongest edge inside the object (:func:`_ring_edge`: a lid's rim, a label's edge) is taken, or, when no
+    ring shows (no such edge ``_RING_CONTRAST`` times the object's median gradient), the best outline's.
     """
     mask = np.asarray(mask, dtype=bool)
     if not mask.any():
@@ -227,14 +245,16 @@ def fit_revolution(mask: np.ndarray, radius_rows: np.ndarray, column: float, til
         return None
     best_iou = max(iou for iou, _ in candidates)
     near = [(iou, body) for iou, body in candidates if iou >= best_iou - _IOU_TOLERANCE]
-    grey = cv2.GaussianBlur(cv2.cvtColor(np.ascontiguousarray(image[..., :3]), cv2.COLOR_RGB2GRAY).astype(np.float32),
-                            (0, 0), _EDGE_BLUR)
+    # The object's colours carried outwards over the background: the outline itself makes no edge.
+    grey = cv2.cvtColor(np.ascontiguousarray(image[..., :3]), cv2.COLOR_RGB2GRAY).astype(np.float32)
+    _, (near_row, near_col) = ndimage.distance_transform_edt(~mask, return_indices=True)
+    grey = cv2.GaussianBlur(grey[near_row, near_col], (0, 0), _EDGE_BLUR)
     gradient = np.stack([cv2.Sobel(grey, cv2.CV_32F, 1, 0), cv2.Sobel(grey, cv2.CV_32F, 0, 1)], axis=-1)
-    interior = cv2.erode(mask.astype(np.uint8), np.ones((7, 7), np.uint8)).astype(bool)
+    interior = cv2.erode(mask.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
     typical = float(np.median(np.linalg.norm(gradient[interior], axis=1))) if interior.any() else 0.0
-    rims = [_rim_edge(body, camera, gradient, interior) for _, body in near]
-    if max(rims) > _RIM_CONTRAST * max(typical, 1.0):
-        iou, body = near[int(np.argmax(rims))]
+    rings = [_ring_edge(body, camera, gradient, interior) for _, body in near]
+    if max(rings) > _RING_CONTRAST * max(typical, 1.0):
+        iou, body = near[int(np.argmax(rings))]
     else:
         iou, body = max(near, key=lambda candidate: candidate[0])
     # The lean chosen, its rings are scaled where their outline is widest: no ribs round the body.
@@ -309,7 +329,7 @@ def _shown(points: np.ndarray, normals: np.ndarray, camera: Camera, pixels: np.n
     cosine = -(normals * points).sum(-1) / np.maximum(np.linalg.norm(points, axis=-1), 1e-12)
     col = np.clip(np.rint(uv[:, 0]).astype(int), 0, camera.width - 1)
     row = np.clip(np.rint(uv[:, 1]).astype(int), 0, camera.height - 1)
-    shown = (cosine >= MIN_VIEW_COSINE) & pixels[row, col] & (points[:, 2] <= zbuffer[row, col] + slack)
+    shown = (cosine >= _MIN_COLOUR_COSINE) & pixels[row, col] & (points[:, 2] <= zbuffer[row, col] + slack)
     return shown, uv, cosine
 
 
@@ -349,8 +369,8 @@ def revolution_surfels(body: Revolution, image: np.ndarray, pixels: np.ndarray, 
         colour = texture.sample(use_uv[:, 0], use_uv[:, 1], blur_level(cosine))
         known = (own | other).reshape(shape)
         rng = np.random.default_rng(0)
-        if known.any() or side is None:
-            colour = fill_unseen(colour.reshape(*shape, 3), known, rng)
+        if known.any() or side is None:  # the side keeps its bands round the body
+            colour = fill_unseen(colour.reshape(*shape, 3), known, rng, keep_rows=side is None)
         else:  # an end no view shows (a bottom seen from above): the side's texture, quilted
             colour = quilt(side, shape, rng)
         if side is None:
