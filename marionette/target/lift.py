@@ -280,7 +280,8 @@ def _solid(choice: ShapeChoice, image: np.ndarray, mask: np.ndarray, camera: Cam
             box = replace(box, half=box.half * np.where(depthwise, options.thickness, 1.0))
             gaussians, pixel_of, light = _lit(lambda photo: cuboid_surfels(
                 box, photo, mask, camera, options.stride, options.opacity, radius_px), image, mask, camera, options)
-            return replace(choice, solid_iou=box.iou, light=light), (gaussians, pixel_of, np.zeros(mask.shape, bool), 0.0)
+            return (replace(choice, solid_iou=box.iou, light=light),
+                    (gaussians, pixel_of, np.zeros(mask.shape, bool), 0.0))
         if choice.forced:
             raise InputError("--shape cuboid: the target's outline shows no box (neither a box's hexagon nor a "
                              "rectangle)")
