@@ -398,7 +398,7 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
     from . import pipeline
     from .plot import plot_prior
     from .source import ExtractOptions
-    from .source.extract import HINGE_NOTE
+    from .source.extract import HINGE_NOTE, SLIDER_NOTE
     from .source.rigid import RETRIED_NOTE
 
     parts_value = checked("--parts", parse_parts, parts)
@@ -429,26 +429,34 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
                                 "their anchor closely")
     recovered = prior.metadata.get("recovered_frames") or {}
     if recovered:
-        hinged = sum(note.startswith(HINGE_NOTE) for note in recovered.values())
+        hinged = sum(note.startswith((HINGE_NOTE, SLIDER_NOTE)) for note in recovered.values())
         retried = sum(note.startswith(RETRIED_NOTE) for note in recovered.values())
         seconds = prior.metadata.get("timings", {}).get("recover", 0.0)
         ways = [f"by alignment ({seconds:.2f} s)"] if hinged + retried < len(recovered) else []
         if hinged:
-            ways.append("about a hinge")
+            ways.append("on a joint")
         if retried:
             ways.append("by PnP after the refinement")
         how = " or ".join(ways)
         session.reporter.detail(f"  {len(recovered)} part-frames the tracks lost were recovered {how}: "
                                 f"{', '.join(recovered)}")
     for part, joint in (prior.metadata.get("joints") or {}).items():
-        how = (f"a hinge on part {joint['on_part']} ({joint['residual_px']:.2f} px against "
-               f"{joint['free_residual_px']:.2f} px free)"
-               if joint["model"] == "hinge" else f"free: {joint['reason']}")
-        session.reporter.detail(f"  part {part}: {how}")
+        session.reporter.detail(f"  part {part}: {_joint_line(joint)}")
     if plot is not None:
         plot_prior(prior, session.stage(plot), title=Path(source).name)
         session.output("plot", plot)
     return prior
+
+
+def _joint_line(joint: dict) -> str:
+    """How a part moves on its joint, from its note in the prior's ``metadata["joints"]``."""
+    if joint["model"] == "free":
+        return f"free: {joint['reason']}"
+    span = (f"turning {joint['range_deg'][0]:.1f}° to {joint['range_deg'][1]:.1f}°" if joint["model"] == "hinge"
+            else f"travelling {joint['range'][0]:.3f} to {joint['range'][1]:.3f} in the poses' units")
+    axis = ", ".join(f"{v:.2f}" for v in joint["axis"])
+    return (f"a {joint['model']} on part {joint['on_part']} along ({axis}), {span} "
+            f"({joint['residual_px']:.2f} px against {joint['free_residual_px']:.2f} px free)")
 
 
 @app.command(cls=_Command)

@@ -425,3 +425,16 @@ def test_the_command_reference_pages_are_current():
     for name, text in expected.items():
         assert (FOLDER / name).read_text(encoding="utf-8") == text, \
             f"docs/commands/{name} is out of date: run `python -m marionette.cli_docs`"
+
+
+def test_verbose_says_how_each_part_moves_on_its_joint():
+    from marionette.cli import _joint_line
+
+    slider = {"model": "slider", "on_part": 0, "axis": [0.41, 0.46, -0.78], "range": [0.0, 0.6137],
+              "residual_px": 0.23, "free_residual_px": 0.25, "dropped_tracks": 3}
+    assert _joint_line(slider) == ("a slider on part 0 along (0.41, 0.46, -0.78), travelling 0.000 to 0.614 in the "
+                                   "poses' units (0.23 px against 0.25 px free)")
+    hinge = {"model": "hinge", "on_part": 1, "axis": [1.0, 0.0, 0.0], "point": [0, 0, 5], "range_deg": [0.0, 72.5],
+             "residual_px": 0.3, "free_residual_px": 0.4, "dropped_tracks": 0}
+    assert "a hinge on part 1 along (1.00, 0.00, 0.00), turning 0.0° to 72.5°" in _joint_line(hinge)
+    assert _joint_line({"model": "free", "reason": "it barely moves"}) == "free: it barely moves"

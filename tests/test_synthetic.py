@@ -18,9 +18,10 @@ FRAMES = 6
 
 
 def _cases():
+    needs = {"hinge": "hinge", "slide": "drawer"}  # the joint motions need their own objects
     for motion in MOTIONS:
         for obj in OBJECTS:
-            if motion != "hinge" or obj == "hinge":
+            if needs.get(motion, obj) == obj:
                 yield motion, obj
 
 
@@ -45,7 +46,7 @@ def _hull_mask(scene, t: int) -> np.ndarray:
 def test_shapes_and_dtypes(scenes, case):
     sc = scenes[case]
     w, h = SIZE
-    p = 2 if sc.object == "hinge" else 1
+    p = 2 if sc.object in ("hinge", "drawer") else 1
     assert (sc.motion, sc.object) == case
     assert sc.frames.shape == (FRAMES, h, w, 3) and sc.frames.dtype == np.uint8
     assert sc.masks.shape == (FRAMES, h, w) and sc.masks.dtype == bool
@@ -166,6 +167,20 @@ def test_hinge_lid_turns_about_hinge_line():
     assert dist.max() < POINT_SPACING
     # Other points of the lid do move.
     assert moved.max() > 0.5
+
+
+def test_the_drawer_slides_out_of_its_cabinet_without_turning():
+    sc = make_scene("slide", num_frames=10, size=SIZE, seed=2)
+    assert sc.object == "drawer" and sc.num_parts == 2
+    rel = invert_transform(sc.poses[0]) @ sc.poses[1]  # the drawer relative to the cabinet
+    assert rotation_angle_deg(rel[:, :3, :3]).max() < 1e-9
+    cabinet, drawer = sc.part_points
+    depth = np.ptp(drawer @ rel[-1, :3, 3] / np.linalg.norm(rel[-1, :3, 3]))
+    assert 0.45 * depth < np.linalg.norm(rel[-1, :3, 3]) < 0.85 * depth
+    # Its front shows at first; pulled out, its top and sides show too.
+    assert 300 < (sc.part_masks[0] == 1).sum() < (sc.part_masks[-1] == 1).sum() / 2
+    with pytest.raises(InputError, match="drawer"):
+        make_scene("slide", object="box", num_frames=4, size=(64, 48))
 
 
 def test_hinge_object_with_other_motion_moves_as_one():

@@ -48,10 +48,11 @@ from .camera_motion import estimate_camera_motion, to_world
 from .depth import DepthMaps, poses_from_depth
 from .focal import FOCAL_SCALES, estimate_focal
 from .foreground import auto_masks
-from .hinge import fit_hinge
+from .hinge import HingeFit, fit_hinge
 from .parts import OFF_OBJECT, OUTLIER, STATIC, segment_parts
 from .recover import FrameRecovery
 from .rigid import RigidOptions, ShapePrior, carved_centroid, fit_rigid
+from .slider import SliderFit, fit_slider
 from .smoothing import smooth_poses
 from .tracks import Tracks, _check_video, track
 
@@ -206,11 +207,14 @@ def _propagate_labels(tracks: Tracks, labels: np.ndarray, unlabelled: int, radiu
 #: A hinge is kept when its median reprojection error exceeds the free poses' by no more than this (pixels):
 #: within the tracks' noise, the simpler model.
 _HINGE_TOLERANCE_PX = 0.25
+#: A slider is kept over a hinge unless the hinge's median reprojection error is lower by more than this (pixels).
+_SLIDER_PREFERENCE_PX = 0.05
 #: A frame whose free pose failed counts as found by the hinge fit when this many of the part's tracks place its
 #: one angle (a free pose needs 6 inliers for its 6 degrees of freedom).
 _HINGE_MIN_TRACKS = 3
-#: How the note of such a frame in the metadata's ``recovered_frames`` begins.
+#: How the note of such a frame in the metadata's ``recovered_frames`` begins (a hinge, a slider).
 HINGE_NOTE = "turned about the hinge"
+SLIDER_NOTE = "slid along the slider"
 
 
 def _rigid_groups(seg) -> list[int]:
@@ -220,11 +224,12 @@ def _rigid_groups(seg) -> list[int]:
 
 def _fit_joints(parts: list[_Part], tracks: Tracks, track_labels: np.ndarray, masks: np.ndarray, k: np.ndarray,
                 progress: ProgressCallback) -> dict[str, dict]:
-    """Refit each part as a hinge on the body where that fits as well as its free poses.
+    """Refit each part as a hinge on the body (it turns) or a slider (it travels without turning) where that
+    fits its tracks as well as its free poses.
 
     The body is the part that turns least (a box under its lid, a frame under its door: its pose is the
     better determined); ties go to the larger. Updates the parts' poses and centres in place; returns, per
-    part index, the model kept and why.
+    part index, the model kept (with its axis and range) and why.
     """
     turns = [rotation_angle_deg(p.poses[:, :3, :3]).max() for p in parts]
     on = min(range(len(parts)), key=lambda i: (round(turns[i], 6), -parts[i].pixels.sum()))
@@ -233,24 +238,36 @@ def _fit_joints(parts: list[_Part], tracks: Tracks, track_labels: np.ndarray, ma
     for done, index in enumerate(others, start=1):
         part = parts[index]
         members = track_labels == part.group
-        fit = (None if part.group == STATIC else
-               fit_hinge(tracks.uv[:, members], tracks.visible[:, members], body.poses, part.poses, k))
+        fit = None
+        if part.group != STATIC:
+            args = (tracks.uv[:, members], tracks.visible[:, members], body.poses, part.poses, k)
+            fits = [f for f in (fit_slider(*args), fit_hinge(*args)) if f is not None]
+            # A hinge with a far axis mimics a slider: the slider, one direction instead of an axis, unless the
+            # hinge explains the tracks clearly better.
+            fit = min(fits, key=lambda f: f.residual_px - (_SLIDER_PREFERENCE_PX if isinstance(f, SliderFit) else 0),
+                      default=None)
+        kind = "hinge" if isinstance(fit, HingeFit) else "slider"
         if fit is None:
-            notes[str(index)] = {"model": "free", "reason": f"it barely turns against part {on}, or has too few "
-                                 "tracks"}
+            notes[str(index)] = {"model": "free", "reason": f"it neither turns about an axis nor slides against part "
+                                 f"{on}, or has too few tracks"}
         elif fit.residual_px > fit.free_residual_px + _HINGE_TOLERANCE_PX:
-            notes[str(index)] = {"model": "free", "reason": f"a hinge on part {on} fits its tracks worse "
+            notes[str(index)] = {"model": "free", "reason": f"a {kind} on part {on} fits its tracks worse "
                                  f"({fit.residual_px:.2f} px against {fit.free_residual_px:.2f} px)"}
         else:
             part.poses = fit.poses
-            for t in sorted(part.failed):  # a frame the free fit lost, placed by its tracks about the hinge
+            for t in sorted(part.failed):  # a frame the free fit lost, placed by its tracks on the joint
                 if fit.seen[t] >= _HINGE_MIN_TRACKS:
                     del part.failed[t]
-                    part.recovered[t] = f"{HINGE_NOTE} to fit {fit.seen[t]} tracks"
+                    note = HINGE_NOTE if kind == "hinge" else SLIDER_NOTE
+                    part.recovered[t] = f"{note} to fit {fit.seen[t]} tracks"
             trusted = np.array([t for t in range(len(part.poses)) if t not in part.failed])
             part.centre = carved_centroid(part.shape, masks, part.poses, trusted)
-            notes[str(index)] = {"model": "hinge", "on_part": on, "axis": np.round(fit.axis, 4).tolist(),
-                                 "point": np.round(fit.point, 4).tolist(),
+            if kind == "hinge":
+                joint = {"point": np.round(fit.point, 4).tolist(),
+                         "range_deg": np.round(np.degrees([fit.angles.min(), fit.angles.max()]), 2).tolist()}
+            else:
+                joint = {"range": np.round([fit.distances.min(), fit.distances.max()], 4).tolist()}
+            notes[str(index)] = {"model": kind, "on_part": on, "axis": np.round(fit.axis, 4).tolist(), **joint,
                                  "residual_px": round(fit.residual_px, 3),
                                  "free_residual_px": round(fit.free_residual_px, 3), "dropped_tracks": fit.dropped}
         progress(done, len(others))

@@ -17,7 +17,7 @@ from ._objects import Shape
 
 #: Projected bounding radius of the object at frame 0, as a fraction of half
 #: the smaller image side. Smaller where the motion needs room to move.
-_FILL = {"translation": 0.58, "inplane": 0.75, "outofplane": 0.72, "oscillation": 0.62, "hinge": 0.64}
+_FILL = {"translation": 0.58, "inplane": 0.75, "outofplane": 0.72, "oscillation": 0.62, "hinge": 0.64, "slide": 0.6}
 
 
 def rotation_about(point: np.ndarray, axis: np.ndarray, angles: np.ndarray) -> np.ndarray:
@@ -49,7 +49,7 @@ def plan_motion(motion: str, shape: Shape, camera: Camera, num_frames: int,
         Part k's frame-0 world points → frame t; ``poses[:, 0]`` is identity.
     """
     num_parts = len(shape.parts)
-    rot0 = _initial_rotation(rng, shape.hinge is not None)
+    rot0 = _initial_rotation(rng, shape.hinge is not None or shape.slide is not None)
     up = rot0 @ np.array([0.0, -1.0, 0.0])  # the object's vertical axis in the world
     radius = shape.bounding_radius()
     z0 = camera.fx * radius / (_FILL[motion] * min(camera.width, camera.height) / 2) * rng.uniform(0.95, 1.05)
@@ -90,9 +90,23 @@ def plan_motion(motion: str, shape: Shape, camera: Camera, num_frames: int,
         point = placement[:3, :3] @ shape.hinge[0] + centre
         lid = body @ rotation_about(point, rot0 @ shape.hinge[1], np.radians(rng.uniform(60, 80)) * smooth)
         return placement, np.stack([body, lid])
+    elif motion == "slide":
+        # The drawer pulls out by 50-80 % of its depth, towards the camera's side of the object.
+        body_turn = 0.0 if rng.random() < 0.5 else sign * np.radians(rng.uniform(6, 12))
+        body = rotation_about(centre, up, body_turn * s)
+        smooth = s * s * (3 - 2 * s)
+        travel = rng.uniform(0.5, 0.8) * 0.9 * _extent(shape, shape.slide)
+        drawer = body @ make_transform(np.eye(3), (smooth * travel)[:, None] * (rot0 @ shape.slide))
+        return make_transform(rot0, centre), np.stack([body, drawer])
     else:
         raise ValueError(f"unknown motion {motion!r}")
     return make_transform(rot0, centre), np.repeat(poses[None], num_parts, axis=0)
+
+
+def _extent(shape: Shape, direction: np.ndarray) -> float:
+    """The object's extent along ``direction`` (3,), local units."""
+    points = np.concatenate(shape.part_points()) @ direction
+    return float(points.max() - points.min())
 
 
 def plan_camera(kind: str, num_frames: int, distance: float, rng: np.random.Generator) -> np.ndarray:

@@ -77,19 +77,22 @@ class Shape:
     """An object: parts (part 0 the largest), each a tuple of faces, in object-local coordinates.
 
     ``hinge`` is ``(point, direction)``, two (3,) arrays: the line about which
-    part 1 turns relative to part 0, with positive angles opening it; None for
-    one-part objects.
+    part 1 turns relative to part 0, with positive angles opening it; ``slide``
+    a (3,) unit direction along which part 1 slides out of part 0; None where
+    the object has no such joint.
     """
 
     parts: tuple[tuple[Face, ...], ...]
     hinge: tuple[np.ndarray, np.ndarray] | None = None
+    slide: np.ndarray | None = None
 
     def transformed(self, m: np.ndarray) -> "Shape":
         """All parts moved by one rigid transform (4, 4)."""
         hinge = None
         if self.hinge is not None:
             hinge = (m[:3, :3] @ self.hinge[0] + m[:3, 3], m[:3, :3] @ self.hinge[1])
-        return Shape(tuple(tuple(f.transformed(m) for f in part) for part in self.parts), hinge)
+        slide = None if self.slide is None else m[:3, :3] @ self.slide
+        return Shape(tuple(tuple(f.transformed(m) for f in part) for part in self.parts), hinge, slide)
 
     def part_points(self) -> list[np.ndarray]:
         """Surface samples per part, a list of (M_k, 3) float64."""
@@ -164,6 +167,20 @@ def make_hinged_box(geom: np.random.Generator, tex: np.random.Generator, target:
     # Rotating by -angle about +x lifts the front (-z) edge, so the axis points along -x.
     hinge_point = shift + np.array([0.0, -h / 2, d / 2])
     return Shape((body, lid_faces), (hinge_point, np.array([-1.0, 0.0, 0.0])))
+
+
+def make_drawer(geom: np.random.Generator, tex: np.random.Generator, target: bool = False) -> Shape:
+    """A cabinet with a drawer in the upper part of its front, sliding out along -z.
+
+    Part 0 is the cabinet, part 1 the drawer (a box whose front stands a little proud of the cabinet's);
+    the local origin is the cabinet's centre.
+    """
+    w, h, d = geom.uniform(1.4, 1.7), geom.uniform(0.9, 1.1), geom.uniform(0.9, 1.1)
+    half = np.array([0.4 * w, 0.17 * h, 0.45 * d])
+    hues = _hues(tex, 12, target)
+    cabinet = _box_faces(np.zeros(3), (w / 2, h / 2, d / 2), hues[:6], tex, target)
+    drawer = _box_faces([0.0, -0.2 * h, -d / 2 - 0.02 + half[2]], half, hues[6:], tex, target)
+    return Shape((cabinet, drawer), slide=np.array([0.0, 0.0, -1.0]))
 
 
 def _revolved(profile: np.ndarray, heights: np.ndarray, hues: np.ndarray, tex: np.random.Generator,

@@ -12,12 +12,12 @@ from ..errors import InputError
 from ..geometry import axis_angle_to_matrix, invert_transform, make_transform
 from ..prior import SpatPrior
 from ._motions import plan_camera, plan_motion
-from ._objects import Shape, make_box, make_car, make_cylinder, make_hinged_box, make_rod, make_vase
+from ._objects import Shape, make_box, make_car, make_cylinder, make_drawer, make_hinged_box, make_rod, make_vase
 from ._render import pixel_depth, render_shape, resolve, view_background
 from ._textures import background_texture
 
-MOTIONS = ("translation", "inplane", "outofplane", "oscillation", "hinge")
-OBJECTS = ("box", "hinge")
+MOTIONS = ("translation", "inplane", "outofplane", "oscillation", "hinge", "slide")
+OBJECTS = ("box", "hinge", "drawer")
 #: Objects ``render_object_image`` can draw.
 TARGET_OBJECTS = ("box", "hinge", "cylinder", "vase", "rod", "car")
 BACKGROUNDS = ("textured", "plain")
@@ -29,8 +29,8 @@ _PLAIN_BACKGROUND = np.array([0.86, 0.86, 0.84], np.float32)
 #: Depth of the background plane, in units of the object's depth at frame 0:
 #: far enough that a moving camera sees it turn almost like a rotation homography.
 _BACKGROUND_DEPTH = 10.0
-_BUILDERS = {"box": make_box, "hinge": make_hinged_box, "cylinder": make_cylinder, "vase": make_vase,
-             "rod": make_rod, "car": make_car}
+_BUILDERS = {"box": make_box, "hinge": make_hinged_box, "drawer": make_drawer, "cylinder": make_cylinder,
+             "vase": make_vase, "rod": make_rod, "car": make_car}
 
 
 @dataclass(frozen=True)
@@ -193,11 +193,14 @@ def make_scene(motion: str, *, object: str | None = None, num_frames: int = 48,
         centre), ``"outofplane"`` (~90° yaw about the object's vertical axis,
         turning new faces into view), ``"oscillation"`` (a couple of periods
         of a ±20-30° twist/swing) or ``"hinge"`` (a body, static or turning
-        slowly, and a lid opening 60-80° about its hinge edge).
+        slowly, and a lid opening 60-80° about its hinge edge) or ``"slide"``
+        (a cabinet, static or turning slowly, and a drawer pulled out by
+        50-80 % of its depth).
     object : str, optional
-        ``"box"`` or ``"hinge"`` (a body with a lid: two parts). Defaults to
-        ``"hinge"`` for the hinge motion and ``"box"`` otherwise; with other
-        motions both parts of the hinge object move together.
+        ``"box"``, ``"hinge"`` (a body with a lid: two parts) or ``"drawer"``
+        (a cabinet with a drawer). Defaults to the hinge object for the hinge
+        motion, the drawer for the slide and ``"box"`` otherwise; with other
+        motions the parts of an object move together.
     num_frames : int
         T >= 2; the whole motion is spread over the clip.
     size : (int, int)
@@ -230,11 +233,13 @@ def make_scene(motion: str, *, object: str | None = None, num_frames: int = 48,
     """
     if motion not in MOTIONS:
         raise InputError(f"motion must be one of {', '.join(MOTIONS)}, got {motion!r}")
-    obj = ("hinge" if motion == "hinge" else "box") if object is None else object
+    obj = {"hinge": "hinge", "slide": "drawer"}.get(motion, "box") if object is None else object
     if obj not in OBJECTS:
         raise InputError(f"object must be one of {', '.join(OBJECTS)}, got {obj!r}")
     if motion == "hinge" and obj != "hinge":
         raise InputError("the hinge motion needs the hinge object")
+    if motion == "slide" and obj != "drawer":
+        raise InputError("the slide motion needs the drawer object")
     if isinstance(num_frames, bool) or not isinstance(num_frames, (int, np.integer)) or num_frames < 2:
         raise InputError(f"num_frames must be an integer >= 2, got {num_frames!r}")
     width, height = _check_size(size)
@@ -323,7 +328,7 @@ def object_view(object: str = "box", *, size: tuple[int, int] = (256, 256), seed
     if plain:
         local = Shape(tuple(tuple(dataclasses.replace(f, texture=np.broadcast_to(
             f.texture.mean(axis=(0, 1)), f.texture.shape).astype(np.float32)) for f in part) for part in local.parts),
-            local.hinge)
+            local.hinge, local.slide)
     camera = Camera.from_fov(width, height, fov_deg)
     rot = (axis_angle_to_matrix([0.0, np.radians(turn_deg), 0.0])
            @ axis_angle_to_matrix([np.radians(pitch_deg), 0.0, 0.0])
