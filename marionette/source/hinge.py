@@ -276,10 +276,32 @@ def _fit_key_frames(uv, visible, body_poses, free_poses, k, axis0, point0, angle
         axis = axis0 + p[0] * e1 + p[1] * e2
         return axis / np.linalg.norm(axis), point0 + p[2] * e1 + p[3] * e2, np.r_[0.0, p[4:]]
 
+    def poses(p: np.ndarray) -> np.ndarray:
+        return hinge_poses(body_poses, *unpack(p))
+
+    def gauge(p: np.ndarray) -> float:
+        return np.linalg.norm(unpack(p)[1]) / distance - 1.0
+
+    fitted = fit_joint_tracks(uv, visible, free_poses, k, poses, gauge, np.r_[0.0, 0.0, 0.0, 0.0, angles0[1:]],
+                              min_track_frames, max_evaluations)
+    if fitted is None:
+        return None
+    p, points, tracks, dropped = fitted
+    return (*unpack(p), points, tracks, dropped)
+
+
+def fit_joint_tracks(uv: np.ndarray, visible: np.ndarray, free_poses: np.ndarray, k: np.ndarray, poses,
+                     gauge, start: np.ndarray, min_track_frames: int, max_evaluations: int):
+    """The parameters of a one-degree-of-freedom joint fitted to tracks ``uv`` (T, M, 2) seen where ``visible``
+    (T, M), by robust least squares of their reprojection errors (each track's point re-solved), then again
+    without the tracks that do not follow it. ``poses(p)``: (T, 4, 4) poses of the parameters ``p`` (from
+    ``start``); ``gauge(p)``: a residual holding the scale the images leave free.
+
+    Returns (p, the tracks' points (M', 3), which tracks ((M,) bool), how many were dropped), or None when
+    fewer than 6 tracks follow the joint.
+    """
     def residuals(p: np.ndarray, data: _Observations) -> np.ndarray:
-        axis, point, angles = unpack(p)
-        errors = data.residuals(hinge_poses(body_poses, axis, point, angles), k)[0]
-        return np.r_[errors.ravel(), _GAUGE_WEIGHT * (np.linalg.norm(point) / distance - 1.0)]
+        return np.r_[data.residuals(poses(p), k)[0].ravel(), _GAUGE_WEIGHT * gauge(p)]
 
     def robust_fit(start: np.ndarray, data: _Observations) -> np.ndarray:
         with threadpool_limits(limits=1, user_api="blas"):  # the same bits whatever the BLAS thread count
@@ -290,36 +312,42 @@ def _fit_key_frames(uv, visible, body_poses, free_poses, k, axis0, point0, angle
     if sample.sum() < 6:
         return None
     obs = _Observations(uv, visible, sample)
-    fit = robust_fit(np.r_[0.0, 0.0, 0.0, 0.0, angles0[1:]], obs)
+    fit = robust_fit(start, obs)
     errors = np.linalg.norm(residuals(fit, obs)[:-1].reshape(-1, 2), axis=1)
     free_errors = np.linalg.norm(obs.residuals(free_poses, k)[0], axis=1)
     follows = obs.per_track_median(errors) < _DROP_PX
     if follows.sum() < 6:
         return None
     tracks = sample.copy()
-    if np.median(errors) <= 2 * np.median(free_errors) + _DROP_PX:  # else plainly no hinge: not worth refining
+    if np.median(errors) <= 2 * np.median(free_errors) + _DROP_PX:  # else plainly no joint: not worth refining
         tracks[np.flatnonzero(sample)[~follows]] = False
         obs = _Observations(uv, visible, tracks)
         fit = robust_fit(fit, obs)
-    axis, point, angles = unpack(fit)
-    points = obs.residuals(hinge_poses(body_poses, axis, point, angles), k)[1]
-    return axis, point, angles, points, tracks, int((sample & ~tracks).sum())
+    return fit, obs.residuals(poses(fit), k)[1], tracks, int((sample & ~tracks).sum())
 
 
-def _frame_angle(uv: np.ndarray, visible: np.ndarray, points: np.ndarray, body_pose: np.ndarray, axis: np.ndarray,
-                 point: np.ndarray, start: float, k: np.ndarray) -> float:
-    """The angle about the axis that best places ``points`` (M, 3) on one frame's tracks ``uv`` (M, 2) where
-    ``visible`` (M,); ``start`` when fewer than 3 are seen."""
+def fit_frame_parameter(uv: np.ndarray, visible: np.ndarray, points: np.ndarray, pose, start: float,
+                        k: np.ndarray) -> float:
+    """The one parameter (an angle, a distance) whose ``pose(value)`` (4, 4) best places ``points`` (M, 3) on one
+    frame's tracks ``uv`` (M, 2) where ``visible`` (M,); ``start`` when fewer than 3 are seen."""
     if visible.sum() < 3:
         return start
     seen, observed = points[visible], uv[visible].astype(np.float64)
 
-    def residuals(angle: np.ndarray) -> np.ndarray:
-        pose = hinge_poses(body_pose[None], axis, point, angle)[0]
-        cam = seen @ pose[:3, :3].T + pose[:3, 3]
+    def residuals(value: np.ndarray) -> np.ndarray:
+        moved = pose(value)
+        cam = seen @ moved[:3, :3].T + moved[:3, 3]
         return (cam[:, :2] / cam[:, 2:] * np.diag(k)[:2] + k[:2, 2] - observed).ravel()
 
     return float(least_squares(residuals, [start], loss="cauchy", f_scale=_LOSS_SCALE).x[0])
+
+
+def _frame_angle(uv: np.ndarray, visible: np.ndarray, points: np.ndarray, body_pose: np.ndarray, axis: np.ndarray,
+                 point: np.ndarray, start: float, k: np.ndarray) -> float:
+    """The angle about the axis that best places ``points`` (M, 3) on one frame's tracks (see
+    :func:`fit_frame_parameter`)."""
+    return fit_frame_parameter(uv, visible, points, lambda angle: hinge_poses(body_pose[None], axis, point, angle)[0],
+                               start, k)
 
 
 def _sample_tracks(visible: np.ndarray, keep: np.ndarray) -> np.ndarray:

@@ -20,11 +20,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
-from threadpoolctl import threadpool_limits
 
 from ..geometry import invert_transform
-from .hinge import _DROP_PX, _GAUGE_WEIGHT, _KEY_FRAMES, _LOSS_SCALE, _Observations, _sample_tracks
+from .hinge import _KEY_FRAMES, _Observations, fit_frame_parameter, fit_joint_tracks
 
 __all__ = ["SliderFit", "fit_slider", "slider_poses"]
 
@@ -106,8 +104,9 @@ def fit_slider(uv: np.ndarray, visible: np.ndarray, body_poses: np.ndarray, free
     axis, key_distances, points, tracks, dropped = fitted
     distances = np.interp(np.arange(len(body_poses)), key, key_distances)
     for t in np.setdiff1d(np.arange(len(body_poses)), key):
-        distances[t] = _frame_distance(uv[t, tracks], visible[t, tracks], points, body_poses[t], axis,
-                                       distances[t], k)
+        distances[t] = fit_frame_parameter(uv[t, tracks], visible[t, tracks], points,
+                                           lambda d, t=t: slider_poses(body_poses[t][None], axis, d)[0],
+                                           distances[t], k)
     poses = slider_poses(body_poses, axis, distances)
     slid = float(np.median(np.linalg.norm(every.residuals(poses, k)[0], axis=1)))
     free = float(np.median(np.linalg.norm(free_errors, axis=1)))
@@ -130,47 +129,10 @@ def _fit_key_frames(uv, visible, body_poses, free_poses, k, axis0, distances0, m
         axis = axis0 + p[0] * e1 + p[1] * e2
         return axis / np.linalg.norm(axis), np.r_[0.0, p[2:]]
 
-    def residuals(p: np.ndarray, data: _Observations) -> np.ndarray:
-        axis, distances = unpack(p)
-        errors = data.residuals(slider_poses(body_poses, axis, distances), k)[0]
-        return np.r_[errors.ravel(), _GAUGE_WEIGHT * (distances[widest] / distances0[widest] - 1.0)]
-
-    def robust_fit(start: np.ndarray, data: _Observations) -> np.ndarray:
-        with threadpool_limits(limits=1, user_api="blas"):  # the same bits whatever the BLAS thread count
-            return least_squares(residuals, start, args=(data,), loss="cauchy", f_scale=_LOSS_SCALE,
-                                 max_nfev=max_evaluations).x
-
-    sample = _sample_tracks(visible, visible.sum(axis=0) >= min_track_frames)
-    if sample.sum() < 6:
+    fitted = fit_joint_tracks(uv, visible, free_poses, k, lambda p: slider_poses(body_poses, *unpack(p)),
+                              lambda p: unpack(p)[1][widest] / distances0[widest] - 1.0,
+                              np.r_[0.0, 0.0, distances0[1:]], min_track_frames, max_evaluations)
+    if fitted is None:
         return None
-    obs = _Observations(uv, visible, sample)
-    fit = robust_fit(np.r_[0.0, 0.0, distances0[1:]], obs)
-    errors = np.linalg.norm(residuals(fit, obs)[:-1].reshape(-1, 2), axis=1)
-    free_errors = np.linalg.norm(obs.residuals(free_poses, k)[0], axis=1)
-    follows = obs.per_track_median(errors) < _DROP_PX
-    if follows.sum() < 6:
-        return None
-    tracks = sample.copy()
-    if np.median(errors) <= 2 * np.median(free_errors) + _DROP_PX:  # else plainly no slider: not worth refining
-        tracks[np.flatnonzero(sample)[~follows]] = False
-        obs = _Observations(uv, visible, tracks)
-        fit = robust_fit(fit, obs)
-    axis, distances = unpack(fit)
-    points = obs.residuals(slider_poses(body_poses, axis, distances), k)[1]
-    return axis, distances, points, tracks, int((sample & ~tracks).sum())
-
-
-def _frame_distance(uv: np.ndarray, visible: np.ndarray, points: np.ndarray, body_pose: np.ndarray,
-                    axis: np.ndarray, start: float, k: np.ndarray) -> float:
-    """The travel along ``axis`` that best places ``points`` (M, 3) on one frame's tracks ``uv`` (M, 2) where
-    ``visible`` (M,); ``start`` when fewer than 3 are seen."""
-    if visible.sum() < 3:
-        return start
-    seen, observed = points[visible], uv[visible].astype(np.float64)
-
-    def residuals(distance: np.ndarray) -> np.ndarray:
-        pose = slider_poses(body_pose[None], axis, distance)[0]
-        cam = seen @ pose[:3, :3].T + pose[:3, 3]
-        return (cam[:, :2] / cam[:, 2:] * np.diag(k)[:2] + k[:2, 2] - observed).ravel()
-
-    return float(least_squares(residuals, [start], loss="cauchy", f_scale=_LOSS_SCALE).x[0])
+    p, points, tracks, dropped = fitted
+    return (*unpack(p), points, tracks, dropped)
