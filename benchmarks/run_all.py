@@ -57,6 +57,7 @@ BENCHES = (
                                                  "--noise", "0")),
     Bench("bench_focal.py", "focal.md", quick=("--seeds", "1", "--frames", "24", "--size", "160x120")),
     Bench("bench_parts.py", "parts.md", quick=("--seeds", "1", "--frames", "24", "--size", "160x120")),
+    Bench("bench_articulated.py", "articulated.md", quick=("--scenes", "4")),
     Bench("bench_extract_real.py", "extract_real.md", needs_data=True, quick=("--runs", "1")),
     Bench("bench_reproducibility_real.py", "reproducibility_real.md", needs_data=True),
     Bench("bench_foreground.py", "foreground.md", needs_data=True),
