@@ -143,3 +143,30 @@ def test_joint_tree_keeps_the_longest_seams_of_a_cycle():
     order, parent, _ = joint_tree(square, labels, prior, near)
     # Seams: 0-1 and 0-2 are 1 long, 1-2 only 0.5: the tree is 1 - 0 - 2 from the steadiest part 0.
     assert order[0] == 0 and parent.tolist() == [-1, 0, 0]
+
+
+def test_a_slider_keeps_its_travel_under_the_joints():
+    """A drawer sliding out of its cabinet along x: turned about a joint with the cabinet, its travel would be
+    dropped; marked a slider in the prior's metadata it slides (its own motion), still rigid."""
+    from marionette.prior import SpatPrior
+
+    xs, ys = np.meshgrid(np.arange(0, 2, 0.05), np.arange(0, 0.5, 0.05), indexing="ij")
+    bar = np.column_stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)])
+    labels = (bar[:, 0] >= 1).astype(int)
+    frames = 12
+    poses = np.tile(np.eye(4), (2, frames, 1, 1))
+    poses[1, :, 0, 3] = np.linspace(0, 0.6, frames)
+    rest = np.stack([bar[labels == k].mean(axis=0) for k in range(2)])
+    cents = np.einsum("ktij,kj->kti", poses[..., :3, :3], rest) + poses[..., :3, 3]
+    radii = np.array([np.sqrt(((bar[labels == k] - rest[k]) ** 2).sum(axis=1).mean()) for k in range(2)])
+    joints_only = RefineOptions(kinematic=False, topological=False, propagation=False, shape_matching=False)
+
+    def travel(metadata):
+        prior = SpatPrior.from_poses(poses, cents, radii, fps=10.0, image_size=(64, 64), intrinsics=np.eye(3),
+                                     metadata=metadata)
+        moved = integrate(bar, labels, prior, refine=joints_only)
+        return moved.means[-1][labels == 1] - bar[labels == 1]
+
+    slid = travel({"joints": {"1": {"model": "slider", "on_part": 0, "axis": [1.0, 0.0, 0.0], "range": [0, 0.6]}}})
+    np.testing.assert_allclose(slid, np.broadcast_to([0.6, 0.0, 0.0], slid.shape), atol=1e-5)
+    assert np.abs(travel({})).max() < 0.05  # held by a joint, the drawer stays put

@@ -102,7 +102,9 @@ def joint_tree(means: np.ndarray, labels: np.ndarray, prior: SpatPrior, near: np
     maximum spanning tree of the contact graph weighted by seam size (a seam
     left out, such as the short one closing a cycle of three parts, may
     open). Each tree is rooted at its part that moves least in the prior
-    (rotation in radians plus centre travel in radii).
+    (rotation in radians plus centre travel in radii). A part the prior fits
+    as a slider (``metadata["joints"]``) is nobody's child: a turn about a
+    joint would drop the travel that is its motion; it moves by its own.
     """
     p = prior.num_parts
     a, b = np.repeat(labels, near.shape[1]), labels[near.ravel()]
@@ -119,6 +121,7 @@ def joint_tree(means: np.ndarray, labels: np.ndarray, prior: SpatPrior, near: np
     motion = angles + travel
     cents, radii = part_radii(means, labels, p)
     parent, joints, order = np.full(p, -1), np.zeros((p, 3)), []
+    sliding = {int(i) for i, note in (prior.metadata.get("joints") or {}).items() if note.get("model") == "slider"}
     for root in np.argsort(motion, kind="stable"):
         if root in order:
             continue
@@ -128,7 +131,7 @@ def joint_tree(means: np.ndarray, labels: np.ndarray, prior: SpatPrior, near: np
             k = order[walk]
             walk += 1
             for j in np.nonzero(held[k])[0]:
-                if j in order:
+                if j in order or j in sliding:
                     continue
                 guess = cents[j] + (_source_joint(prior, k, j) - prior.centroids[j, 0]) * radii[j] / prior.radii[j]
                 seam = (labels == k) & (labels[near] == j).any(axis=1) | (labels == j) & (labels[near] == k).any(axis=1)
