@@ -18,10 +18,10 @@ FRAMES = 6
 
 
 def _cases():
-    needs = {"hinge": "hinge", "slide": "drawer"}  # the joint motions need their own objects
+    needs = {"hinge": ("hinge", "door"), "slide": ("drawer",)}  # the joint motions need jointed objects
     for motion in MOTIONS:
         for obj in OBJECTS:
-            if needs.get(motion, obj) == obj:
+            if obj in needs.get(motion, (obj,)):
                 yield motion, obj
 
 
@@ -46,7 +46,7 @@ def _hull_mask(scene, t: int) -> np.ndarray:
 def test_shapes_and_dtypes(scenes, case):
     sc = scenes[case]
     w, h = SIZE
-    p = 2 if sc.object in ("hinge", "drawer") else 1
+    p = 2 if sc.object in ("hinge", "door", "drawer") else 1
     assert (sc.motion, sc.object) == case
     assert sc.frames.shape == (FRAMES, h, w, 3) and sc.frames.dtype == np.uint8
     assert sc.masks.shape == (FRAMES, h, w) and sc.masks.dtype == bool
@@ -181,6 +181,20 @@ def test_the_drawer_slides_out_of_its_cabinet_without_turning():
     assert 300 < (sc.part_masks[0] == 1).sum() < (sc.part_masks[-1] == 1).sum() / 2
     with pytest.raises(InputError, match="drawer"):
         make_scene("slide", object="box", num_frames=4, size=(64, 48))
+
+
+def test_the_door_swings_out_about_its_upright_edge_and_plain_faces_are_one_colour():
+    textured = make_scene("hinge", object="door", num_frames=8, size=SIZE, seed=4)
+    sc = make_scene("hinge", object="door", num_frames=8, size=SIZE, seed=4, plain=True)
+    np.testing.assert_array_equal(sc.part_masks, textured.part_masks)  # the same object, only its paint differs
+    rel = invert_transform(sc.poses[0]) @ sc.poses[1]
+    rotvec = rel[-1, :3, :3] - rel[-1, :3, :3].T
+    axis = np.array([rotvec[2, 1], rotvec[0, 2], rotvec[1, 0]])
+    up = sc.poses[0][0, :3, :3] @ np.array([0.0, 1.0, 0.0])  # the cabinet is still or turns about its upright
+    assert 60 <= rotation_angle_deg(rel[-1, :3, :3]) <= 80 and abs(axis @ up) / np.linalg.norm(axis) > 0.7
+    door = cv2.erode((sc.part_masks[0] == 1).astype(np.uint8), np.ones((5, 5), np.uint8)) > 0  # its face, no edge
+    spread = [sc.frames[0][door].std(axis=0).max(), textured.frames[0][door].std(axis=0).max()]
+    assert spread[0] < 8 < spread[1]  # shading alone (the door is flat) against its texture
 
 
 def test_hinge_object_with_other_motion_moves_as_one():

@@ -8,6 +8,8 @@ Each face is a rectangle ``origin + s * edge_s + t * edge_t`` with
 
 from __future__ import annotations
 
+import dataclasses
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -94,6 +96,12 @@ class Shape:
         slide = None if self.slide is None else m[:3, :3] @ self.slide
         return Shape(tuple(tuple(f.transformed(m) for f in part) for part in self.parts), hinge, slide)
 
+    def plain(self) -> "Shape":
+        """The shape with every face one colour, its texture's mean (shading alone varies it)."""
+        return Shape(tuple(tuple(dataclasses.replace(f, texture=np.broadcast_to(
+            f.texture.mean(axis=(0, 1)), f.texture.shape).astype(np.float32)) for f in part) for part in self.parts),
+            self.hinge, self.slide)
+
     def part_points(self) -> list[np.ndarray]:
         """Surface samples per part, a list of (M_k, 3) float64."""
         return [np.concatenate([f.sample_points() for f in part]) for part in self.parts]
@@ -167,6 +175,22 @@ def make_hinged_box(geom: np.random.Generator, tex: np.random.Generator, target:
     # Rotating by -angle about +x lifts the front (-z) edge, so the axis points along -x.
     hinge_point = shift + np.array([0.0, -h / 2, d / 2])
     return Shape((body, lid_faces), (hinge_point, np.array([-1.0, 0.0, 0.0])))
+
+
+def make_door(geom: np.random.Generator, tex: np.random.Generator, target: bool = False) -> Shape:
+    """A tall cabinet with a door over its front, hinged on its left or right upright edge.
+
+    Part 0 is the cabinet, part 1 the door (a thin slab standing a little proud of the front); positive hinge
+    angles swing the door open, towards -z. The local origin is the cabinet's centre.
+    """
+    w, h, d = geom.uniform(1.0, 1.2), geom.uniform(1.3, 1.6), geom.uniform(0.7, 0.9)
+    side = geom.choice([-1.0, 1.0])  # the hinge's side: x = side * w / 2
+    thick = 0.05
+    hues = _hues(tex, 12, target)
+    cabinet = _box_faces(np.zeros(3), (w / 2, h / 2, d / 2), hues[:6], tex, target)
+    door = _box_faces([0.0, 0.0, -d / 2 - thick / 2], (0.48 * w, 0.48 * h, thick / 2), hues[6:], tex, target)
+    # Turning about +y by a positive angle carries a point on the +x side of the axis towards -z.
+    return Shape((cabinet, door), (np.array([side * 0.48 * w, 0.0, -d / 2]), np.array([0.0, -side, 0.0])))
 
 
 def make_drawer(geom: np.random.Generator, tex: np.random.Generator, target: bool = False) -> Shape:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -12,12 +11,13 @@ from ..errors import InputError
 from ..geometry import axis_angle_to_matrix, invert_transform, make_transform
 from ..prior import SpatPrior
 from ._motions import plan_camera, plan_motion
-from ._objects import Shape, make_box, make_car, make_cylinder, make_drawer, make_hinged_box, make_rod, make_vase
+from ._objects import (Shape, make_box, make_car, make_cylinder, make_door, make_drawer, make_hinged_box, make_rod,
+                       make_vase)
 from ._render import pixel_depth, render_shape, resolve, view_background
 from ._textures import background_texture
 
 MOTIONS = ("translation", "inplane", "outofplane", "oscillation", "hinge", "slide")
-OBJECTS = ("box", "hinge", "drawer")
+OBJECTS = ("box", "hinge", "door", "drawer")
 #: Objects ``render_object_image`` can draw.
 TARGET_OBJECTS = ("box", "hinge", "cylinder", "vase", "rod", "car")
 BACKGROUNDS = ("textured", "plain")
@@ -29,8 +29,8 @@ _PLAIN_BACKGROUND = np.array([0.86, 0.86, 0.84], np.float32)
 #: Depth of the background plane, in units of the object's depth at frame 0:
 #: far enough that a moving camera sees it turn almost like a rotation homography.
 _BACKGROUND_DEPTH = 10.0
-_BUILDERS = {"box": make_box, "hinge": make_hinged_box, "drawer": make_drawer, "cylinder": make_cylinder,
-             "vase": make_vase, "rod": make_rod, "car": make_car}
+_BUILDERS = {"box": make_box, "hinge": make_hinged_box, "door": make_door, "drawer": make_drawer,
+             "cylinder": make_cylinder, "vase": make_vase, "rod": make_rod, "car": make_car}
 
 
 @dataclass(frozen=True)
@@ -65,6 +65,9 @@ class SyntheticScene:
     camera_poses : (T, 4, 4) float64
         ``world_to_camera`` of each frame; identity for frame 0, and for all
         frames of a static camera.
+    plain : bool
+        Every face one colour (its texture's mean): only shading and edges
+        show the parts, as on a plain grey door.
     camera_motion : str
         One of ``CAMERA_MOTIONS``.
     """
@@ -182,7 +185,7 @@ def _rng(seed: int, purpose: int, use: int) -> np.random.Generator:
 def make_scene(motion: str, *, object: str | None = None, num_frames: int = 48,
                size: tuple[int, int] = (320, 240), seed: int = 0, fps: float = 24.0,
                background: str = "textured", noise: float = 0.0,
-               camera_motion: str = "static") -> SyntheticScene:
+               camera_motion: str = "static", plain: bool = False) -> SyntheticScene:
     """Render a textured rigid object moving in front of a static or moving camera.
 
     Parameters
@@ -197,10 +200,11 @@ def make_scene(motion: str, *, object: str | None = None, num_frames: int = 48,
         (a cabinet, static or turning slowly, and a drawer pulled out by
         50-80 % of its depth).
     object : str, optional
-        ``"box"``, ``"hinge"`` (a body with a lid: two parts) or ``"drawer"``
-        (a cabinet with a drawer). Defaults to the hinge object for the hinge
-        motion, the drawer for the slide and ``"box"`` otherwise; with other
-        motions the parts of an object move together.
+        ``"box"``, ``"hinge"`` (a body with a lid: two parts), ``"door"`` (a
+        cabinet with a door on an upright hinge, for the hinge motion too) or
+        ``"drawer"`` (a cabinet with a drawer). Defaults to the hinge object
+        for the hinge motion, the drawer for the slide and ``"box"``
+        otherwise; with other motions the parts of an object move together.
     num_frames : int
         T >= 2; the whole motion is spread over the clip.
     size : (int, int)
@@ -236,8 +240,8 @@ def make_scene(motion: str, *, object: str | None = None, num_frames: int = 48,
     obj = {"hinge": "hinge", "slide": "drawer"}.get(motion, "box") if object is None else object
     if obj not in OBJECTS:
         raise InputError(f"object must be one of {', '.join(OBJECTS)}, got {obj!r}")
-    if motion == "hinge" and obj != "hinge":
-        raise InputError("the hinge motion needs the hinge object")
+    if motion == "hinge" and obj not in ("hinge", "door"):
+        raise InputError("the hinge motion needs the hinge or the door object")
     if motion == "slide" and obj != "drawer":
         raise InputError("the slide motion needs the drawer object")
     if isinstance(num_frames, bool) or not isinstance(num_frames, (int, np.integer)) or num_frames < 2:
@@ -253,6 +257,8 @@ def make_scene(motion: str, *, object: str | None = None, num_frames: int = 48,
 
     geom = _rng(seed, _SCENE, _GEOMETRY)
     local = _BUILDERS[obj](geom, _rng(seed, _SCENE, _TEXTURE))
+    if plain:
+        local = local.plain()
     camera = Camera.from_fov(width, height, FOV_DEG)
     placement, poses = plan_motion(motion, local, camera, int(num_frames), geom)
     shape = local.transformed(placement)
@@ -326,9 +332,7 @@ def object_view(object: str = "box", *, size: tuple[int, int] = (256, 256), seed
         raise InputError(f"fov_deg must be between 1 and 170, got {fov_deg!r}")
     local = _BUILDERS[object](_rng(seed, _TARGET, _GEOMETRY), _rng(seed, _TARGET, _TEXTURE), target=True)
     if plain:
-        local = Shape(tuple(tuple(dataclasses.replace(f, texture=np.broadcast_to(
-            f.texture.mean(axis=(0, 1)), f.texture.shape).astype(np.float32)) for f in part) for part in local.parts),
-            local.hinge, local.slide)
+        local = local.plain()
     camera = Camera.from_fov(width, height, fov_deg)
     rot = (axis_angle_to_matrix([0.0, np.radians(turn_deg), 0.0])
            @ axis_angle_to_matrix([np.radians(pitch_deg), 0.0, 0.0])
