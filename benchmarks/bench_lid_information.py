@@ -29,6 +29,7 @@ import numpy as np
 
 from marionette.geometry import rotation_angle_deg
 from marionette.source import hinge
+from marionette.source.joint_tracks import Observations
 from marionette.source.tracks import Tracks, _align_affine, _aligned_noise, track
 from marionette.synthetic import make_scene
 
@@ -144,8 +145,7 @@ def main() -> None:
             if name == "re-aligned":  # its worse hinge, and where the lid's exact tracks show it
                 fit = max(fits, key=lambda f: lid_error(f, scene))
                 shown = tracker.visible & lid
-                observations = hinge._Observations(np.where(shown[..., None], truth, np.nan), shown,
-                                                   shown.sum(axis=0) >= 3)
+                observations = Observations(np.where(shown[..., None], truth, np.nan), shown, shown.sum(axis=0) >= 3)
                 residual = np.linalg.norm(observations.residuals(fit.poses, scene.camera.K)[0], axis=1)
                 wrong[seed] = (lid_error(fit, scene),
                                [np.median(residual[observations.t == t]) for t in FRAMES_SHOWN])

@@ -8,7 +8,8 @@ from scipy.spatial.transform import Rotation
 
 from marionette.geometry import rotation_angle_deg
 from marionette.source.extract import _HINGE_TOLERANCE_PX
-from marionette.source.hinge import _initial_hinge, _Observations, fit_hinge, hinge_poses
+from marionette.source.hinge import _initial_hinge, fit_hinge, hinge_poses
+from marionette.source.joint_tracks import Observations
 
 K = np.array([[300.0, 0, 160], [0, 300.0, 120], [0, 0, 1]])
 T = 24
@@ -44,7 +45,7 @@ def hinge():
 
 def test_points_are_solved_from_exact_tracks(hinge):
     body, axis, point, angles, points, uv, visible = hinge
-    obs = _Observations(uv, visible, np.ones(len(points), bool))
+    obs = Observations(uv, visible, np.ones(len(points), bool))
     errors, solved = obs.residuals(hinge_poses(body, axis, point, angles), K)
     np.testing.assert_allclose(solved, points, atol=1e-8)
     assert np.abs(errors).max() < 1e-8

@@ -24,31 +24,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
-from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
-from threadpoolctl import threadpool_limits
 
 from ..geometry import invert_transform, rotation_angle_deg
+from .joint_tracks import Observations, fit_frame_parameter, fit_joint_tracks, key_frames
 
 __all__ = ["HingeFit", "fit_hinge", "hinge_poses"]
 
-#: Cauchy loss scale of the reprojection residuals, pixels.
-_LOSS_SCALE = 0.5
-#: Weight of the scale gauge: the axis 1 % nearer or farther than the free fit put it costs what a 0.01 px
-#: residual does (it only has to hold the scale where the images leave it free).
-_GAUGE_WEIGHT = 1.0
-#: The fit uses at most this many tracks (the longest), plus the longest few seen in each frame.
-_MAX_TRACKS = 400
-_TRACKS_PER_FRAME = 16
-#: At most this many evenly spaced frames in the joint fit of the axis and the angles.
-_KEY_FRAMES = 24
-#: A point nearer than this (in the poses' units) to the camera plane counts as behind it, and its observations
-#: as this many pixels off.
-_MIN_DEPTH = 1e-6
-_BEHIND_PX = 1e3
-#: A track whose median residual under the first fit exceeds this (pixels) is dropped before the second.
-_DROP_PX = 1.0
 #: The key frames' fit starts from the free fit's angles times each of these, and the hinge that explains the
 #: tracks best is kept. Its cost has several minima where the turn trades against the part's relief, and free
 #: angles that differ by a RANSAC inlier can start it in a wrong one; from half the angles, it reaches the true
@@ -99,108 +81,6 @@ def hinge_poses(body_poses: np.ndarray, axis: np.ndarray, point: np.ndarray, ang
     return body_poses @ turn
 
 
-class _Observations:
-    """The visible positions of the tracks ``keep`` (M,) bool, flattened track by track: frame ``t`` (N,),
-    track ``m`` (N,) (0..M'-1 among those kept), pixel ``uv`` (N, 2)."""
-
-    def __init__(self, uv: np.ndarray, visible: np.ndarray, keep: np.ndarray) -> None:
-        m, t = np.nonzero(visible[:, keep].T)  # grouped by track, so that per-track sums are segment sums
-        self.t, self.m, self.num_points = t, m, int(keep.sum())
-        self.uv = uv[:, keep][t, m].astype(np.float64)
-        self._starts = np.searchsorted(m, np.arange(self.num_points))
-
-    def residuals(self, poses: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(N, 2) reprojection errors under ``poses`` (T, 4, 4), each track's frame-0 point re-solved (linear
-        triangulation, then three Gauss-Newton steps on the reprojection error), and those points (M, 3)."""
-        return _solve_points(self.t, self.uv, self._starts, np.ascontiguousarray(poses[:, :3]), k, 3)
-
-    def per_track_median(self, errors: np.ndarray) -> np.ndarray:
-        """(M,) median of each track's per-observation ``errors`` (N,)."""
-        return np.array([np.median(e) for e in np.split(errors, self._starts[1:])])
-
-
-@njit(cache=True)
-def _solve3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """x with a x = b for a symmetric positive (semi-)definite 3x3 ``a``, by the adjugate (no LAPACK: the same
-    bits on every BLAS kernel); a singular ``a`` gives zeros."""
-    c00 = a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]
-    c01 = a[1, 2] * a[2, 0] - a[1, 0] * a[2, 2]
-    c02 = a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]
-    det = a[0, 0] * c00 + a[0, 1] * c01 + a[0, 2] * c02
-    out = np.zeros(3)
-    if abs(det) < 1e-300:
-        return out
-    inv = np.empty((3, 3))
-    inv[0, 0], inv[1, 0], inv[2, 0] = c00, c01, c02
-    inv[0, 1] = a[0, 2] * a[2, 1] - a[0, 1] * a[2, 2]
-    inv[1, 1] = a[0, 0] * a[2, 2] - a[0, 2] * a[2, 0]
-    inv[2, 1] = a[0, 1] * a[2, 0] - a[0, 0] * a[2, 1]
-    inv[0, 2] = a[0, 1] * a[1, 2] - a[0, 2] * a[1, 1]
-    inv[1, 2] = a[0, 2] * a[1, 0] - a[0, 0] * a[1, 2]
-    inv[2, 2] = a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0]
-    for i in range(3):
-        out[i] = (inv[i, 0] * b[0] + inv[i, 1] * b[1] + inv[i, 2] * b[2]) / det
-    return out
-
-
-@njit(cache=True, error_model="numpy")
-def _solve_points(t: np.ndarray, uv: np.ndarray, starts: np.ndarray, poses: np.ndarray, k: np.ndarray,
-                  steps: int) -> tuple[np.ndarray, np.ndarray]:
-    """(M, 3) points from observations grouped by track (track m: ``starts[m]`` up to the next start) of frames
-    ``t`` (N,) at pixels ``uv`` (N, 2) under ``poses`` (T, 3, 4): linear triangulation, then ``steps``
-    Gauss-Newton steps; and the (N, 2) reprojection errors they leave."""
-    num_points, n = len(starts), len(t)
-    points, errors = np.zeros((num_points, 3)), np.zeros((n, 2))
-    proj, du, dv = np.empty(4), np.empty(3), np.empty(3)
-    for m in range(num_points):
-        stop = starts[m + 1] if m + 1 < num_points else n
-        normal, rhs = np.zeros((3, 3)), np.zeros(3)
-        for i in range(starts[m], stop):
-            r = poses[t[i]]
-            for row in range(2):  # with p = K [R | t]: u (p2 . X) - p0 . X = 0, v (p2 . X) - p1 . X = 0
-                for j in range(4):
-                    proj[j] = uv[i, row] * r[2, j] - (k[row, 0] * r[0, j] + k[row, 1] * r[1, j] + k[row, 2] * r[2, j])
-                for a in range(3):
-                    rhs[a] -= proj[a] * proj[3]
-                    for b in range(3):
-                        normal[a, b] += proj[a] * proj[b]
-        x = _solve3(normal, rhs)
-        for _ in range(steps):
-            normal, grad = np.zeros((3, 3)), np.zeros(3)
-            for i in range(starts[m], stop):
-                r = poses[t[i]]
-                cx = r[0, 0] * x[0] + r[0, 1] * x[1] + r[0, 2] * x[2] + r[0, 3]
-                cy = r[1, 0] * x[0] + r[1, 1] * x[1] + r[1, 2] * x[2] + r[1, 3]
-                cz = r[2, 0] * x[0] + r[2, 1] * x[1] + r[2, 2] * x[2] + r[2, 3]
-                if cz < _MIN_DEPTH:  # behind the camera: no say in the step
-                    continue
-                res_u = k[0, 0] * cx / cz + k[0, 2] - uv[i, 0]
-                res_v = k[1, 1] * cy / cz + k[1, 2] - uv[i, 1]
-                for a in range(3):  # d pixel / d point = d pixel / d camera point @ rotation
-                    du[a] = k[0, 0] * (r[0, a] - cx / cz * r[2, a]) / cz
-                    dv[a] = k[1, 1] * (r[1, a] - cy / cz * r[2, a]) / cz
-                for a in range(3):
-                    grad[a] += du[a] * res_u + dv[a] * res_v
-                    for b in range(3):
-                        normal[a, b] += du[a] * du[b] + dv[a] * dv[b]
-            step = _solve3(normal, grad)
-            for a in range(3):
-                x[a] -= step[a]
-        # Element by element: an array store compiles numba's shape-error formatting (2.6 s of 5.9 s).
-        points[m, 0], points[m, 1], points[m, 2] = x[0], x[1], x[2]
-        for i in range(starts[m], stop):
-            r = poses[t[i]]
-            cx = r[0, 0] * x[0] + r[0, 1] * x[1] + r[0, 2] * x[2] + r[0, 3]
-            cy = r[1, 0] * x[0] + r[1, 1] * x[1] + r[1, 2] * x[2] + r[1, 3]
-            cz = r[2, 0] * x[0] + r[2, 1] * x[1] + r[2, 2] * x[2] + r[2, 3]
-            if cz < _MIN_DEPTH:
-                errors[i, 0] = errors[i, 1] = _BEHIND_PX
-            else:
-                errors[i, 0] = k[0, 0] * cx / cz + k[0, 2] - uv[i, 0]
-                errors[i, 1] = k[1, 1] * cy / cz + k[1, 2] - uv[i, 1]
-    return errors, points
-
-
 def _initial_hinge(relative: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Axis direction (3,), axis point (3,) and angles (T,) closest to relative poses (T, 4, 4)."""
     rotvecs = Rotation.from_matrix(relative[:, :3, :3]).as_rotvec()  # (T, 3)
@@ -240,8 +120,8 @@ def fit_hinge(uv: np.ndarray, visible: np.ndarray, body_poses: np.ndarray, free_
     axis0, point0, angles0 = _initial_hinge(relative)
     # The axis and the angles of evenly spaced key frames first (the cost grows with the frames squared),
     # then each other frame's angle alone, about that axis.
-    key = np.unique(np.linspace(0, len(body_poses) - 1, min(len(body_poses), _KEY_FRAMES)).round().astype(int))
-    every = _Observations(uv, visible, keep)
+    key = key_frames(len(body_poses))
+    every = Observations(uv, visible, keep)
     free = float(np.median(np.linalg.norm(every.residuals(free_poses, k)[0], axis=1)))
     best = None
     for scale in _START_SCALES:
@@ -290,73 +170,9 @@ def _fit_key_frames(uv, visible, body_poses, free_poses, k, axis0, point0, angle
     return (*unpack(p), points, tracks, dropped)
 
 
-def fit_joint_tracks(uv: np.ndarray, visible: np.ndarray, free_poses: np.ndarray, k: np.ndarray, poses,
-                     gauge, start: np.ndarray, min_track_frames: int, max_evaluations: int):
-    """The parameters of a one-degree-of-freedom joint fitted to tracks ``uv`` (T, M, 2) seen where ``visible``
-    (T, M), by robust least squares of their reprojection errors (each track's point re-solved), then again
-    without the tracks that do not follow it. ``poses(p)``: (T, 4, 4) poses of the parameters ``p`` (from
-    ``start``); ``gauge(p)``: a residual holding the scale the images leave free.
-
-    Returns (p, the tracks' points (M', 3), which tracks ((M,) bool), how many were dropped), or None when
-    fewer than 6 tracks follow the joint.
-    """
-    def residuals(p: np.ndarray, data: _Observations) -> np.ndarray:
-        return np.r_[data.residuals(poses(p), k)[0].ravel(), _GAUGE_WEIGHT * gauge(p)]
-
-    def robust_fit(start: np.ndarray, data: _Observations) -> np.ndarray:
-        with threadpool_limits(limits=1, user_api="blas"):  # the same bits whatever the BLAS thread count
-            return least_squares(residuals, start, args=(data,), loss="cauchy", f_scale=_LOSS_SCALE,
-                                 max_nfev=max_evaluations).x
-
-    sample = _sample_tracks(visible, visible.sum(axis=0) >= min_track_frames)
-    if sample.sum() < 6:
-        return None
-    obs = _Observations(uv, visible, sample)
-    fit = robust_fit(start, obs)
-    errors = np.linalg.norm(residuals(fit, obs)[:-1].reshape(-1, 2), axis=1)
-    free_errors = np.linalg.norm(obs.residuals(free_poses, k)[0], axis=1)
-    follows = obs.per_track_median(errors) < _DROP_PX
-    if follows.sum() < 6:
-        return None
-    tracks = sample.copy()
-    if np.median(errors) <= 2 * np.median(free_errors) + _DROP_PX:  # else plainly no joint: not worth refining
-        tracks[np.flatnonzero(sample)[~follows]] = False
-        obs = _Observations(uv, visible, tracks)
-        fit = robust_fit(fit, obs)
-    return fit, obs.residuals(poses(fit), k)[1], tracks, int((sample & ~tracks).sum())
-
-
-def fit_frame_parameter(uv: np.ndarray, visible: np.ndarray, points: np.ndarray, pose, start: float,
-                        k: np.ndarray) -> float:
-    """The one parameter (an angle, a distance) whose ``pose(value)`` (4, 4) best places ``points`` (M, 3) on one
-    frame's tracks ``uv`` (M, 2) where ``visible`` (M,); ``start`` when fewer than 3 are seen."""
-    if visible.sum() < 3:
-        return start
-    seen, observed = points[visible], uv[visible].astype(np.float64)
-
-    def residuals(value: np.ndarray) -> np.ndarray:
-        moved = pose(value)
-        cam = seen @ moved[:3, :3].T + moved[:3, 3]
-        return (cam[:, :2] / cam[:, 2:] * np.diag(k)[:2] + k[:2, 2] - observed).ravel()
-
-    return float(least_squares(residuals, [start], loss="cauchy", f_scale=_LOSS_SCALE).x[0])
-
-
 def _frame_angle(uv: np.ndarray, visible: np.ndarray, points: np.ndarray, body_pose: np.ndarray, axis: np.ndarray,
                  point: np.ndarray, start: float, k: np.ndarray) -> float:
     """The angle about the axis that best places ``points`` (M, 3) on one frame's tracks (see
     :func:`fit_frame_parameter`)."""
     return fit_frame_parameter(uv, visible, points, lambda angle: hinge_poses(body_pose[None], axis, point, angle)[0],
                                start, k)
-
-
-def _sample_tracks(visible: np.ndarray, keep: np.ndarray) -> np.ndarray:
-    """(M,) bool: the longest of the tracks ``keep``, at most :data:`_MAX_TRACKS`, and the
-    :data:`_TRACKS_PER_FRAME` longest seen in each frame (so no frame is left without)."""
-    lengths = np.where(keep, visible.sum(axis=0), 0)
-    order = np.lexsort((np.arange(len(lengths)), -lengths))  # longest first, ties by index
-    chosen = np.zeros(len(lengths), bool)
-    chosen[order[:_MAX_TRACKS]] = True
-    for seen in visible[:, order]:
-        chosen[order[seen][:_TRACKS_PER_FRAME]] = True
-    return chosen & keep

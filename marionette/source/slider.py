@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..geometry import invert_transform
-from .hinge import _KEY_FRAMES, _Observations, fit_frame_parameter, fit_joint_tracks
+from .joint_tracks import Observations, fit_frame_parameter, fit_joint_tracks, key_frames
 
 __all__ = ["SliderFit", "fit_slider", "slider_poses"]
 
@@ -90,13 +90,13 @@ def fit_slider(uv: np.ndarray, visible: np.ndarray, body_poses: np.ndarray, free
     keep = visible.sum(axis=0) >= min_track_frames
     if keep.sum() < 6:
         return None
-    every = _Observations(uv, visible, keep)
+    every = Observations(uv, visible, keep)
     free_errors, points = every.residuals(free_poses, k)
     distance = float(np.median(np.linalg.norm(points, axis=1)))
     axis0, distances0 = _initial_slider(relative, np.median(points, axis=0))
     if np.abs(distances0).max() < _MIN_TRAVEL * distance:
         return None
-    key = np.unique(np.linspace(0, len(body_poses) - 1, min(len(body_poses), _KEY_FRAMES)).round().astype(int))
+    key = key_frames(len(body_poses))
     fitted = _fit_key_frames(uv[key], visible[key], body_poses[key], free_poses[key], k, axis0, distances0[key],
                              min_track_frames, max_evaluations)
     if fitted is None:

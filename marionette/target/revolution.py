@@ -198,18 +198,19 @@ def _ring_edge(body: Revolution, camera: Camera, gradient: np.ndarray, interior:
     angles = np.linspace(0.0, np.pi, _RING_SAMPLES)
     near = -np.sign(depthwise[2]) if depthwise[2] != 0 else 1.0  # depthwise points away from or to the camera
     ring = np.cos(angles)[:, None] * across + near * np.sin(angles)[:, None] * depthwise
-    best = 0.0
-    for height, radius in zip(body.heights, body.radii):
-        uv = project(body.base + height * body.axis + radius * ring, camera)
-        tangent = np.gradient(uv, axis=0)
-        normal = np.stack([-tangent[:, 1], tangent[:, 0]], axis=1) / np.maximum(
-            np.linalg.norm(tangent, axis=1, keepdims=True), 1e-9)
-        col, row = np.rint(uv[:, 0]).astype(int), np.rint(uv[:, 1]).astype(int)
-        on = (col >= 0) & (col < camera.width) & (row >= 0) & (row < camera.height)
-        on[on] = interior[row[on], col[on]]
-        if on.mean() >= 0.5:
-            best = max(best, float(np.abs((gradient[row[on], col[on]] * normal[on]).sum(axis=1)).mean()))
-    return best
+    uv = project(body.base + body.heights[:, None, None] * body.axis + body.radii[:, None, None] * ring, camera)
+    tangent = np.gradient(uv, axis=1)  # (S, K, 2): every ring at once
+    normal = np.stack([-tangent[..., 1], tangent[..., 0]], axis=-1) / np.maximum(
+        np.linalg.norm(tangent, axis=-1, keepdims=True), 1e-9)
+    col, row = np.rint(uv[..., 0]).astype(int), np.rint(uv[..., 1]).astype(int)
+    inside = (col >= 0) & (col < camera.width) & (row >= 0) & (row < camera.height)
+    col, row = np.clip(col, 0, camera.width - 1), np.clip(row, 0, camera.height - 1)
+    on = inside & interior[row, col]
+    across = np.abs((gradient[row, col] * normal).sum(axis=-1))
+    counted = on.mean(axis=1) >= 0.5
+    if not counted.any():
+        return 0.0
+    return float(((across * on).sum(axis=1) / np.maximum(on.sum(axis=1), 1))[counted].max())
 
 
 def fit_revolution(mask: np.ndarray, radius_rows: np.ndarray, column: float, tilt: float, camera: Camera,
