@@ -451,12 +451,14 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
 def _joint_line(joint: dict) -> str:
     """How a part moves on its joint, from its note in the prior's ``metadata["joints"]``."""
     if joint["model"] == "free":
-        return f"free: {joint['reason']}"
+        return f"free: {joint['reason']}" + (f"; in its pixels: {joint['pixels']}" if "pixels" in joint else "")
     span = (f"turning {joint['range_deg'][0]:.1f}° to {joint['range_deg'][1]:.1f}°" if joint["model"] == "hinge"
             else f"travelling {joint['range'][0]:.3f} to {joint['range'][1]:.3f} in the poses' units")
     axis = ", ".join(f"{v:.2f}" for v in joint["axis"])
-    return (f"a {joint['model']} on part {joint['on_part']} along ({axis}), {span} "
-            f"({joint['residual_px']:.2f} px against {joint['free_residual_px']:.2f} px free)")
+    why = (f"fitted to its pixels and the masks, {joint['cost_ratio']:.2f} of its free poses' cost"
+           if "fitted_to" in joint else
+           f"{joint['residual_px']:.2f} px against {joint['free_residual_px']:.2f} px free")
+    return f"a {joint['model']} on part {joint['on_part']} along ({axis}), {span} ({why})"
 
 
 @app.command(cls=_Command)

@@ -438,3 +438,8 @@ def test_verbose_says_how_each_part_moves_on_its_joint():
              "residual_px": 0.3, "free_residual_px": 0.4, "dropped_tracks": 0}
     assert "a hinge on part 1 along (1.00, 0.00, 0.00), turning 0.0° to 72.5°" in _joint_line(hinge)
     assert _joint_line({"model": "free", "reason": "it barely moves"}) == "free: it barely moves"
+    from_pixels = {"model": "hinge", "on_part": 0, "axis": [0.0, 1.0, 0.0], "point": [0, 0, 4],
+                   "range_deg": [0.0, 70.0], "fitted_to": "pixels and masks", "cost_ratio": 0.31}
+    assert _joint_line(from_pixels).endswith("(fitted to its pixels and the masks, 0.31 of its free poses' cost)")
+    assert _joint_line({"model": "free", "reason": "no hinge fits", "pixels": "too few of its tracks placed"}) == \
+        "free: no hinge fits; in its pixels: too few of its tracks placed"

@@ -49,7 +49,10 @@ from .depth import DepthMaps, poses_from_depth
 from .focal import FOCAL_SCALES, estimate_focal
 from .foreground import auto_masks
 from .hinge import HingeFit, fit_hinge
-from .parts import OFF_OBJECT, OUTLIER, STATIC, segment_parts
+from .joint_tracks import Observations
+from .part_pixels import find_still_part, label_pixels, part_depth
+from .pixel_joint import fit_pixel_joint
+from .parts import OFF_OBJECT, OUTLIER, STATIC, PartSegmentation, TooFewTracks, segment_parts
 from .recover import FrameRecovery
 from .rigid import RigidOptions, ShapePrior, carved_centroid, fit_rigid
 from .slider import SliderFit, fit_slider
@@ -160,6 +163,7 @@ class _Part:
     radius: float
     failed: dict[int, str]  # frames whose pose was interpolated, with the reason
     recovered: dict[int, str]  # frames the tracks lost whose pose was found again (alignment, hinge, PnP retried)
+    points: np.ndarray | None = None  # (N, 3) its triangulated tracks at frame 0
 
 
 def _strictness(options: ExtractOptions) -> bool | str:
@@ -272,6 +276,83 @@ def _fit_joints(parts: list[_Part], tracks: Tracks, track_labels: np.ndarray, ma
                                  "free_residual_px": round(fit.free_residual_px, 3), "dropped_tracks": fit.dropped}
         progress(done, len(others))
     return notes
+
+
+#: A part with fewer tracks than _PIXEL_JOINT_TRACKS, whose tracks fit no joint, has its joint looked for in
+#: its pixels; at least _PIXEL_JOINT_POINTS of its tracks must be triangulated (they place its surface).
+_PIXEL_JOINT_TRACKS = 40
+_PIXEL_JOINT_POINTS = 8
+#: A track that never moves more than this (pixels) from where it starts is still.
+_STILL_TRACK_PX = 1.5
+#: A track whose median reprojection error under its part's final poses exceeds this (pixels) does not place
+#: the part's surface.
+_SURFACE_TRACK_PX = 1.0
+
+
+def _fit_pixel_joint(parts: list[_Part], index: int, tracks: Tracks, track_labels: np.ndarray, frames, masks,
+                     whole: ShapePrior, k: np.ndarray, notes: dict[str, dict]) -> None:
+    """Part ``index``, whose few tracks fit no joint, refitted as the hinge or slider on the body that best
+    explains its pixels and the masks (:func:`fit_pixel_joint`) when that beats its free poses; its surface is
+    where its tracks put it, so at least :data:`_PIXEL_JOINT_POINTS` of them must be triangulated. ``notes``
+    (the metadata's joints) say what was done."""
+    part, on = parts[index], notes[str(index)].get("on_part", next(i for i in range(len(parts)) if i != index))
+    points = _surface_points(part, tracks, track_labels, k)
+    if points is None or len(points) < _PIXEL_JOINT_POINTS:
+        notes[str(index)]["pixels"] = "too few of its tracks placed to give its surface a depth"
+        return
+    depth = part_depth(points, k, part.pixels, whole.front)
+    fit = fit_pixel_joint(frames, masks, k, parts[on].poses, np.asarray(masks[0], bool), part.pixels, depth,
+                          part.poses)
+    if fit is None or fit.cost >= fit.start_cost:
+        notes[str(index)]["pixels"] = "no hinge or slider explains its pixels better than its free poses"
+        return
+    part.poses = fit.poses
+    part.failed.clear()
+    joint = ({"point": np.round(fit.point, 4).tolist(),
+              "range_deg": np.round(np.degrees([fit.values.min(), fit.values.max()]), 2).tolist()}
+             if fit.kind == "hinge" else {"range": np.round([fit.values.min(), fit.values.max()], 4).tolist()})
+    notes[str(index)] = {"model": fit.kind, "on_part": on, "axis": np.round(fit.axis, 4).tolist(), **joint,
+                         "fitted_to": "pixels and masks", "cost_ratio": round(fit.cost / fit.start_cost, 3)}
+
+
+def _still_tracks(tracks: Tracks) -> np.ndarray:
+    """(M,) bool: tracks that never move more than :data:`_STILL_TRACK_PX` from where they start."""
+    first = tracks.uv[tracks.start, np.arange(tracks.num_tracks)]  # (M, 2)
+    moved = np.where(tracks.visible, np.linalg.norm(tracks.uv - first, axis=2), 0.0)
+    return moved.max(axis=0) < _STILL_TRACK_PX
+
+
+def _surface_points(part: _Part, tracks: Tracks, track_labels: np.ndarray, k: np.ndarray) -> np.ndarray | None:
+    """(N, 3) frame-0 points of the part's tracks triangulated under its poses (those that fit them), or None."""
+    members = track_labels == part.group
+    if part.group == STATIC or not members.any():
+        return None
+    observed = Observations(tracks.uv, tracks.visible, members)
+    errors, points = observed.residuals(part.poses, k)
+    return points[observed.per_track_median(np.linalg.norm(errors, axis=1)) < _SURFACE_TRACK_PX]
+
+
+def _label_part_pixels(parts: list[_Part], tracks: Tracks, track_labels: np.ndarray, frames, masks,
+                       whole: ShapePrior, k: np.ndarray) -> None:
+    """Give each frame-0 object pixel to the part whose motion explains it (:func:`label_pixels`), each part's
+    surface at the depth of its tracks triangulated under its final poses; the parts' pixels, shapes and
+    centres follow."""
+    vote = np.full(whole.front.shape, -1, np.int64)
+    for index, part in enumerate(parts):
+        vote[part.pixels] = index
+    on = vote >= 0
+    depths = [part_depth(_surface_points(part, tracks, track_labels, k), k, on, whole.front) for part in parts]
+    labels = label_pixels(frames, masks, k, np.stack([p.poses for p in parts]), np.stack(depths), vote)
+    for index, part in enumerate(parts):
+        pixels = labels == index
+        if not pixels.any():
+            continue
+        part.pixels = pixels
+        part.shape = ShapePrior.from_depths(np.where(pixels, whole.front, np.nan), np.where(pixels, whole.back, np.nan),
+                                            k)
+        trusted = np.array([t for t in range(len(part.poses)) if t not in part.failed])
+        part.centre = carved_centroid(part.shape, masks, part.poses, trusted, points=part.points)
+        part.radius = part.shape.radius
 
 
 def whole_object_poses(tracks: Tracks, shape: ShapePrior, options: RigidOptions = RigidOptions()) -> np.ndarray:
@@ -444,6 +525,7 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
                                    **common)
         return dataclasses.replace(prior, extras=extras)
 
+    beside_still = None  # (T, 4, 4) the whole object's poses, when its pixels show a still part beside a moving one
     if options.parts == 1:
         chain_labels = np.zeros(chains.num_tracks, np.int64)
         pixel_labels = np.where(masks[0], 0, OFF_OBJECT)
@@ -451,18 +533,37 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
     else:
         with stages("parts", "finding parts", 1) as progress:
             whole_poses = whole_object_poses(chains, whole, options.rigid)
-            seg = segment_parts(chains, masks[0], k, options.parts, whole=whole_poses)
-            if options.parts != "auto" and len(_rigid_groups(seg)) > options.parts:  # a static part counts too
-                seg = segment_parts(chains, masks[0], k, options.parts - 1, whole=whole_poses)
+            try:
+                seg = segment_parts(chains, masks[0], k, options.parts, whole=whole_poses)
+                if options.parts != "auto" and len(_rigid_groups(seg)) > options.parts:  # a static part counts
+                    seg = segment_parts(chains, masks[0], k, options.parts - 1, whole=whole_poses)
+            except TooFewTracks as error:  # a plain object: one moving part as far as the tracks tell
+                seg = PartSegmentation(track_labels=np.zeros(chains.num_tracks, np.int64), num_parts=1,
+                                       pixel_labels=np.where(masks[0], 0, OFF_OBJECT).astype(np.int16),
+                                       selection=f"1 part: {str(error).removeprefix('segment_parts: ')}")
             progress(1, 1)
         chain_labels = _propagate_labels(chains, seg.track_labels, OUTLIER, radius=3.0 * options.spacing)
         pixel_labels = seg.pixel_labels
         groups = _rigid_groups(seg)
+        if groups == [0] and options.parts in ("auto", 2):  # one moving part: is something beside it still?
+            with stages("still", "looking for a still part", 1) as progress:
+                still = find_still_part(frames, masks, k, whole_poses, whole.front / whole.centroid[2], masks[0])
+                progress(1, 1)
+            metadata["still_part"] = ("none: every pixel moves with the tracks" if still is None else
+                                      f"found from the pixels: {still.sum() / masks[0].sum():.0%} of the object "
+                                      "stays still")
+            if still is not None:
+                beside_still = whole_poses.copy()
+                beside_still[:, :3, 3] *= whole.centroid[2]
+                pixel_labels = np.where(still, STATIC, pixel_labels)
+                chain_labels = np.where(_still_tracks(chains), STATIC, chain_labels)
+                groups = [0, STATIC]
+        groups = [g for g in groups if (pixel_labels == g).any()]  # a part is pixels too
         if options.parts != "auto" and len(groups) != options.parts:
-            still = " and a static one" if STATIC in groups else ""
-            raise InputError(f"{options.parts} parts were asked for, but the tracks show {seg.num_parts} moving "
-                             f"part(s){still} (a part needs 5 % of the first frame's tracks moving alike); ask for "
-                             f"{len(groups)}, or 'auto'")
+            moving, still = len(groups) - (STATIC in groups), " and a still one" if STATIC in groups else ""
+            raise InputError(f"{options.parts} parts were asked for, but the tracks show {moving} moving part(s)"
+                             f"{still} (a part needs 5 % of the first frame's tracks moving alike, and pixels), and "
+                             f"the pixels no still part beside them; ask for {len(groups)}, or 'auto'")
         # Rounded: the scores' last digits follow the BLAS thread count, and the metadata should not.
         metadata["part_selection"] = {str(n): round(float(score), 3) for n, score in seg.scores.items()}
         metadata["part_selection_note"] = seg.selection
@@ -482,7 +583,9 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
             failed: dict[int, str] = {}
             recovered: dict[int, str] = {}
             points = None  # fitted 3D points whose depth the motion measured (they extend the carved volume)
-            if g == STATIC or members.sum() < options.rigid.min_points:
+            if g != STATIC and members.sum() < options.rigid.min_points and beside_still is not None:
+                poses = beside_still  # a part the pixels split from a still one: the motion of them all
+            elif g == STATIC or members.sum() < options.rigid.min_points:
                 poses = np.tile(np.eye(4), (num_frames, 1, 1))  # static, or too few tracks to tell
             elif depths is not None:
                 poses = poses_from_depth(tracks.subset(members), depths, k)
@@ -492,12 +595,14 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
                 fit = fit_rigid(tracks.subset(members), shape, options=options.rigid, progress=step,
                                 recover=recover)
                 poses, failed, points = fit.poses, fit.failed_frames, fit.points[fit.triangulated]
+                if beside_still is not None and len(failed) > num_frames // 2:  # its few tracks lost it
+                    poses, failed, points = beside_still, {}, None
                 recovered = dict(sorted({**fit.recovered_frames, **fit.retried_frames}.items()))
                 recover_seconds += fit.timings["recover"]
                 rms.append(fit.reprojection_rms)
             trusted = np.array([t for t in range(num_frames) if t not in failed])
             centre = carved_centroid(shape, masks, poses, trusted, points=points)
-            parts.append(_Part(g, pixels, shape, poses, centre, shape.radius, failed, recovered))
+            parts.append(_Part(g, pixels, shape, poses, centre, shape.radius, failed, recovered, points))
     if recover_seconds:  # its own line in the timings, out of the pose fit's
         stages.timings["poses"] -= recover_seconds
         stages.timings["recover"] = recover_seconds
@@ -506,6 +611,18 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
     if options.joints and len(parts) > 1:
         with stages("joints", "fitting joints", len(parts) - 1) as progress:
             metadata["joints"] = _fit_joints(parts, chains, chain_labels, masks, k, progress)
+        free = [i for i, note in metadata["joints"].items() if note["model"] == "free"
+                and (chain_labels == parts[int(i)].group).sum() < _PIXEL_JOINT_TRACKS]
+        if free:  # too few tracks to fit a joint: look for one in the pixels
+            with stages("pixel_joint", "fitting joints to the pixels", len(free)) as progress:
+                for done, index in enumerate(free, start=1):
+                    _fit_pixel_joint(parts, int(index), chains, chain_labels, frames, masks, whole, k,
+                                     metadata["joints"])
+                    progress(done, len(free))
+    if len(parts) > 1:
+        with stages("labels", "labelling the parts' pixels", 1) as progress:
+            _label_part_pixels(parts, chains, chain_labels, frames, masks, whole, k)
+            progress(1, 1)
     poses = np.stack([p.poses for p in parts])  # (K, T, 4, 4) in camera coordinates
     cameras = None  # (1, T, 4, 4) world_to_camera, when the camera's motion is removed
     if camera is not None and not camera.static:

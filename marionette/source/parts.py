@@ -108,7 +108,7 @@ from .part_normals import (
 )
 from .tracks import Tracks
 
-__all__ = ["PartSegmentation", "segment_parts", "STATIC", "OUTLIER", "OFF_OBJECT"]
+__all__ = ["PartSegmentation", "segment_parts", "TooFewTracks", "STATIC", "OUTLIER", "OFF_OBJECT"]
 
 #: Track label of the static group (motion consistent with identity).
 STATIC = -1
@@ -133,6 +133,10 @@ _NOISE_PATCH = 12
 # BLAS kernel the motions of a compromise fit (a hinge fitted as one body) can land in other local
 # optima, whose scores differ by about a tenth of a part's penalty (docs/benchmarks/parts.md).
 _SELECTION_MARGIN = 0.15
+
+
+class TooFewTracks(InputError):
+    """Too few tracks to segment (a plain object): the tracks cannot tell parts apart."""
 
 
 class _Motion(NamedTuple):
@@ -709,7 +713,7 @@ def segment_parts(tracks: Tracks, object_mask0: np.ndarray, K: np.ndarray, num_p
     at_first = int((usable & visible[0]).sum())
     min_part = max(8, int(0.05 * at_first))
     if usable.sum() < min_part:
-        raise InputError(f"segment_parts: {usable.sum()} tracks are visible in at least {min_length} frames; "
+        raise TooFewTracks(f"segment_parts: {usable.sum()} tracks are visible in at least {min_length} frames; "
                          f"at least {min_part} are needed")
     if not at_first:  # parts are found and labelled on the first frame
         raise InputError("segment_parts: no track is on the object in the first frame (start where the object "
