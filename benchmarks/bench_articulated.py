@@ -173,13 +173,13 @@ READING = (
     "(`source/part_pixels.py`): a drawer that slides over its cabinet's front no longer takes the front with "
     "it, and a plain door or lid, too plain for its few tracks to make a part, is split from a still body by "
     "the pixels that keep their colour. Where the moving part's tracks are its own, the joint comes out right "
-    "(a still cabinet's drawer as a slider, a lid as a hinge). A plain part's joint is only as good as its few "
-    "tracks: its type mostly right, its axis not (tens of degrees); fitted to the pixels and masks "
-    "(`source/pixel_joint.py`) it comes within 0.1-0.4° when frame 0's depth is known (tests/test_pixel_joint.py), "
-    "but its few tracks do not place its surface well enough here, and a search over the plane's slant was "
-    "tried and could not tell the slants apart by silhouette and colour. A plain body that turns a few degrees "
-    "is taken for a still one (its faces keep their colour), so its error is that turn. Where the cabinet "
-    "turns too, a hinge about a far axis still fits a drawer's tracks better than one direction of travel.")
+    "(a still cabinet's drawer as a slider, a lid as a hinge). A part with too few tracks has its joint fitted "
+    "to its pixels and the masks (`source/pixel_joint.py`) on the faces of the box the first frame's outline "
+    "shows (`target/cuboid.py`): plain lids and doors within 0.03-2° of their axis. A plain drawer is not yet: "
+    "its face keeps its colour as it slides, so the pixels give it only its border, and a hinge along that "
+    "explains it better than a slider. A plain body that turns a few degrees is taken for a still one (its "
+    "faces keep their colour), so its error is that turn. Where the cabinet turns too, a hinge about a far "
+    "axis still fits a drawer's tracks better than one direction of travel.")
 
 
 def main() -> None:

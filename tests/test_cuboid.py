@@ -6,7 +6,7 @@ from marionette.camera import Camera
 from marionette.errors import InputError
 from marionette.geometry import axis_angle_to_matrix, matrix_to_quaternion
 from marionette.render import render
-from marionette.target.cuboid import Cuboid, cuboid_surfels, fit_cuboid
+from marionette.target.cuboid import Cuboid, box_depth, cuboid_surfels, fit_cuboid
 from marionette.target.lift import LiftOptions, lift_image
 
 SIZE = 128
@@ -60,6 +60,23 @@ def test_a_box_is_fitted_from_its_outline_in_perspective():
         assert angle_between(box.axes[order], truth.axes) < 4.0
         assert box.half[order] == pytest.approx(truth.half, rel=0.08)
         assert box.centre == pytest.approx(truth.centre, abs=0.1)
+
+
+def test_box_depth_is_the_nearest_face_along_each_ray():
+    """Against a slow twin: each pixel's ray marched in small steps until it enters the box."""
+    camera = Camera.from_fov(SIZE, SIZE, 60.0)
+    box = random_box(np.random.default_rng(3), camera)
+    mask = box_photo(box, camera)[..., 3] > 0
+    depth = box_depth(box, camera.K, mask)
+    assert np.isfinite(depth[mask]).all() and np.isnan(depth[~mask]).all()
+    rng = np.random.default_rng(4)
+    vv, uu = np.nonzero(mask)
+    inner = cv2.erode(mask.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)  # rays that surely hit
+    for i in rng.choice(np.flatnonzero(inner[vv, uu]), 20, replace=False):
+        ray = np.linalg.solve(camera.K, [uu[i], vv[i], 1.0])
+        steps = np.arange(5.0, 12.0, 1e-4)
+        inside = np.all(np.abs((steps[:, None] * ray - box.centre) @ box.axes.T) <= box.half, axis=1)
+        assert depth[vv[i], uu[i]] == pytest.approx(steps[np.argmax(inside)], abs=2e-4)
 
 
 def test_no_box_in_a_round_outline():

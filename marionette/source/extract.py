@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..camera import Camera
 from ..errors import InputError
 from ..geometry import invert_transform, rotation_angle_deg
 from ..io.video import PackedMasks, VideoFrames
@@ -44,6 +45,7 @@ from ..prior import CAMERA_EXTRA, SpatPrior
 from ..progress import ProgressCallback, Reporter
 from ..reconstruct.joint import JointOptions, joint_fit
 from ..reconstruct.quality import frame_iou
+from ..target.cuboid import MIN_BOX_IOU, box_depth, fit_cuboid
 from .camera_motion import estimate_camera_motion, to_world
 from .depth import DepthMaps, poses_from_depth
 from .focal import FOCAL_SCALES, estimate_focal
@@ -291,20 +293,25 @@ _SURFACE_TRACK_PX = 1.0
 
 def _fit_pixel_joint(parts: list[_Part], index: int, tracks: Tracks, track_labels: np.ndarray, frames, masks,
                      whole: ShapePrior, k: np.ndarray, notes: dict[str, dict]) -> None:
-    """Part ``index``, whose few tracks fit no joint, refitted as the hinge or slider on the body that best
-    explains its pixels and the masks (:func:`fit_pixel_joint`) when that beats its free poses; its surface is
-    where its tracks put it, so at least :data:`_PIXEL_JOINT_POINTS` of them must be triangulated. ``notes``
-    (the metadata's joints) say what was done."""
+    """Part ``index``, too few tracks to trust the joint they fit (or none), refitted as the hinge or slider on
+    the body that best explains its pixels and the masks (:func:`fit_pixel_joint`) when that beats its poses so
+    far. Its surface: the faces of the box the frame-0 outline shows, when it shows one (a plain cabinet or
+    chest, whose part's few tracks do not place it), else where at least :data:`_PIXEL_JOINT_POINTS` of its
+    tracks put it. ``notes`` (the metadata's joints) say what was done."""
     part, on = parts[index], notes[str(index)].get("on_part", next(i for i in range(len(parts)) if i != index))
+    mask0 = np.asarray(masks[0], bool)
+    box = fit_cuboid(mask0, Camera(k, np.eye(4), *mask0.shape[::-1]), float(whole.centroid[2]))
     points = _surface_points(part, tracks, track_labels, k)
-    if points is None or len(points) < _PIXEL_JOINT_POINTS:
-        notes[str(index)]["pixels"] = "too few of its tracks placed to give its surface a depth"
+    if box is not None and box.iou >= MIN_BOX_IOU:  # a box (a cabinet, a chest): its faces are the surface
+        depth, surface = box_depth(box, k, mask0), "the faces of the box its outline shows"
+    elif points is not None and len(points) >= _PIXEL_JOINT_POINTS:
+        depth, surface = part_depth(points, k, part.pixels, whole.front), "its tracks"
+    else:
+        notes[str(index)]["pixels"] = "neither its outline (a box) nor its tracks give its surface a depth"
         return
-    depth = part_depth(points, k, part.pixels, whole.front)
-    fit = fit_pixel_joint(frames, masks, k, parts[on].poses, np.asarray(masks[0], bool), part.pixels, depth,
-                          part.poses)
+    fit = fit_pixel_joint(frames, masks, k, parts[on].poses, mask0, part.pixels, depth, part.poses)
     if fit is None or fit.cost >= fit.start_cost:
-        notes[str(index)]["pixels"] = "no hinge or slider explains its pixels better than its free poses"
+        notes[str(index)]["pixels"] = "no hinge or slider explains its pixels better than its poses"
         return
     part.poses = fit.poses
     part.failed.clear()
@@ -312,7 +319,8 @@ def _fit_pixel_joint(parts: list[_Part], index: int, tracks: Tracks, track_label
               "range_deg": np.round(np.degrees([fit.values.min(), fit.values.max()]), 2).tolist()}
              if fit.kind == "hinge" else {"range": np.round([fit.values.min(), fit.values.max()], 4).tolist()})
     notes[str(index)] = {"model": fit.kind, "on_part": on, "axis": np.round(fit.axis, 4).tolist(), **joint,
-                         "fitted_to": "pixels and masks", "cost_ratio": round(fit.cost / fit.start_cost, 3)}
+                         "fitted_to": "pixels and masks", "surface": surface,
+                         "cost_ratio": round(fit.cost / fit.start_cost, 3)}
 
 
 def _still_tracks(tracks: Tracks) -> np.ndarray:
@@ -611,9 +619,9 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
     if options.joints and len(parts) > 1:
         with stages("joints", "fitting joints", len(parts) - 1) as progress:
             metadata["joints"] = _fit_joints(parts, chains, chain_labels, masks, k, progress)
-        free = [i for i, note in metadata["joints"].items() if note["model"] == "free"
-                and (chain_labels == parts[int(i)].group).sum() < _PIXEL_JOINT_TRACKS]
-        if free:  # too few tracks to fit a joint: look for one in the pixels
+        free = [i for i, note in metadata["joints"].items()
+                if (chain_labels == parts[int(i)].group).sum() < _PIXEL_JOINT_TRACKS]
+        if free:  # too few tracks to trust a joint fitted to them: look for one in the pixels
             with stages("pixel_joint", "fitting joints to the pixels", len(free)) as progress:
                 for done, index in enumerate(free, start=1):
                     _fit_pixel_joint(parts, int(index), chains, chain_labels, frames, masks, whole, k,

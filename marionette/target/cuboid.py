@@ -36,7 +36,7 @@ from .shapes import box_outline, box_outline_edges, largest_outline
 from .surfels import MaskedTexture
 from .synthesis import quilt
 
-__all__ = ["Cuboid", "fit_cuboid", "cuboid_surfels", "MIN_BOX_IOU"]
+__all__ = ["Cuboid", "box_depth", "fit_cuboid", "cuboid_surfels", "MIN_BOX_IOU"]
 
 # The fitted box must cover the mask this well (IoU of its projection) to be taken for a box.
 MIN_BOX_IOU = 0.93
@@ -85,6 +85,32 @@ class Cuboid:
         """(8, 3) corners."""
         signs = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)], np.float64)
         return self.centre + (signs * self.half) @ self.axes
+
+
+def box_depth(cuboid: Cuboid, k: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """(H, W) depth of the box's nearest face along the ray of each pixel of ``mask`` (H, W) bool (NaN off it);
+    a pixel the box's projection misses (its outline a pixel off the mask's) takes its nearest pixel's."""
+    vv, uu = np.nonzero(mask)
+    rays = np.linalg.solve(k, np.stack([uu, vv, np.ones_like(uu)]).astype(np.float64)).T  # (N, 3), z = 1
+    nearest = np.full(len(vv), np.inf)
+    for i in range(3):
+        normal = cuboid.axes[i]
+        facing = rays @ normal
+        for side in (-1.0, 1.0):
+            depth = ((cuboid.centre + side * cuboid.half[i] * normal) @ normal) / np.where(facing == 0, np.nan, facing)
+            hit = depth[:, None] * rays - cuboid.centre
+            on_face = depth > 0
+            for j in range(3):
+                if j != i:
+                    on_face &= np.abs(hit @ cuboid.axes[j]) <= cuboid.half[j] * (1 + 1e-6)
+            nearest = np.where(on_face & (depth < nearest), depth, nearest)
+    out = np.full(mask.shape, np.nan)
+    out[vv, uu] = np.where(np.isfinite(nearest), nearest, np.nan)
+    missed = ~np.isfinite(out)
+    if missed.all():
+        return out
+    _, (iy, ix) = ndimage.distance_transform_edt(missed, return_indices=True)
+    return np.where(mask, out[iy, ix], np.nan)
 
 
 def _hull(cuboid: Cuboid, camera: Camera) -> np.ndarray:
