@@ -19,7 +19,8 @@ cabinet whose drawer is pulled out by 50-80 % of its depth). Each seed draws the
 
     flock /tmp/marionette-bench.lock python benchmarks/bench_articulated.py [--scenes 24]
 
-Writes ``docs/benchmarks/articulated.md``.
+Writes ``docs/benchmarks/articulated.md`` and ``docs/images/articulated_labels.png`` (frames and part labels of
+one scene of each type and texture).
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
+import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from marionette.errors import InputError  # noqa: E402
@@ -43,6 +45,7 @@ from marionette.synthetic import make_scene  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "docs" / "benchmarks" / "articulated.md"
+SHEET = ROOT / "docs" / "images" / "articulated_labels.png"
 #: Scene type: (motion, object, the true joint).
 KINDS = {"lid": ("hinge", "hinge", "hinge"), "door": ("hinge", "door", "hinge"),
          "drawer": ("slide", "drawer", "slider")}
@@ -98,7 +101,24 @@ def score(kind: str, seed: int) -> dict:
         true_share = np.linalg.norm(travel) / np.linalg.norm(centre)
         found_share = max(np.abs(joint["range"])) / np.linalg.norm(prior.centroids[moving, 0])
         row["range_error"] = abs(found_share / true_share - 1.0) * 100
+    row["sheet"] = _sheet_row(scene, labels, body)
     return row
+
+
+def _sheet_row(scene, labels: np.ndarray, body: int) -> np.ndarray:
+    """(120, 480, 3) uint8: the first and last frames, the part labels found (body red, moving part green) and
+    the true ones, each 160x120."""
+    colours = np.array([(210, 70, 70), (70, 190, 90)], np.uint8)
+
+    def paint(part_of: np.ndarray) -> np.ndarray:
+        out = np.zeros(part_of.shape + (3,), np.uint8)
+        for index, colour in enumerate(colours):
+            out[part_of == index] = colour
+        return out
+
+    found = np.where(labels < 0, -1, np.where(labels == body, 0, 1))
+    tiles = [scene.frames[0], scene.frames[-1], paint(found), paint(scene.part_masks[0])]
+    return np.hstack([cv2.resize(tile, (160, 120), interpolation=cv2.INTER_AREA) for tile in tiles])
 
 
 def _rotvec(r: np.ndarray) -> np.ndarray:
@@ -136,6 +156,9 @@ def report(rows: list[dict], scenes: int) -> str:
         f"{os.cpu_count()} cores, Python {platform.python_version()}. The scenes, the extraction and the scores "
         "are in the script's docstring. Range error: degrees for a hinge's final angle, per cent for a slider's "
         "final travel; axis and range errors only where the joint found is the true one (medians).",
+        "",
+        "![first and last frames, part labels found (body red, moving part green), true labels: one scene of each "
+        "type, rich then plain](../images/articulated_labels.png)",
         "",
         f"| scenes | count | joint right | and axis ≤ {AXIS_FOUND_DEG:.0f}° | axis error ° | range error "
         "| label IoU | body error ° | time s |",
@@ -194,7 +217,12 @@ def main() -> None:
         print(f"{kind} seed {r['seed']}: joint {r['joint']}, axis {r['axis_error']}, range {r['range_error']}, "
               f"label IoU {r['label_iou']:.3f}, body {r['body_error']}°, {r['time']:.1f} s", flush=True)
     OUT.write_text(report(rows, args.scenes))
-    print(f"wrote {OUT}")
+    # One scene of each type and texture: frames, labels found, true labels.
+    picked = [next(r for r in rows if r["kind"] == kind and r["plain"] == plain and "sheet" in r)
+              for kind in KINDS for plain in (False, True)
+              if any(r["kind"] == kind and r["plain"] == plain and "sheet" in r for r in rows)]
+    cv2.imwrite(str(SHEET), cv2.cvtColor(np.vstack([r["sheet"] for r in picked]), cv2.COLOR_RGB2BGR))
+    print(f"wrote {OUT} and {SHEET}")
 
 
 if __name__ == "__main__":
