@@ -34,6 +34,7 @@ import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -284,6 +285,10 @@ def _fit_joints(parts: list[_Part], tracks: Tracks, track_labels: np.ndarray, ma
 #: its pixels; at least _PIXEL_JOINT_POINTS of its tracks must be triangulated (they place its surface).
 _PIXEL_JOINT_TRACKS = 40
 _PIXEL_JOINT_POINTS = 8
+#: A face of the box moves when a joint explains the frames below this share of its staying still's cost; a
+#: face smaller than _MIN_FACE_SHARE of the object is not tried.
+_MOVING_FACE_RATIO = 0.7
+_MIN_FACE_SHARE = 0.05
 #: A track that never moves more than this (pixels) from where it starts is still.
 _STILL_TRACK_PX = 1.5
 #: A track whose median reprojection error under its part's final poses exceeds this (pixels) does not place
@@ -300,7 +305,7 @@ def _fit_pixel_joint(parts: list[_Part], index: int, tracks: Tracks, track_label
     tracks put it. ``notes`` (the metadata's joints) say what was done."""
     part, on = parts[index], notes[str(index)].get("on_part", next(i for i in range(len(parts)) if i != index))
     mask0 = np.asarray(masks[0], bool)
-    box = fit_cuboid(mask0, Camera(k, np.eye(4), *mask0.shape[::-1]), float(whole.centroid[2]))
+    box = fit_cuboid(mask0, Camera(k, np.eye(4), *mask0.shape[::-1]), float(whole.centroid[2]), any_outline=True)
     points = _surface_points(part, tracks, track_labels, k)
     if box is not None and box.iou >= MIN_BOX_IOU:  # a box (a cabinet, a chest): its faces are the surface
         depth, surface = box_depth(box, k, mask0), "the faces of the box its outline shows"
@@ -321,6 +326,38 @@ def _fit_pixel_joint(parts: list[_Part], index: int, tracks: Tracks, track_label
     notes[str(index)] = {"model": fit.kind, "on_part": on, "axis": np.round(fit.axis, 4).tolist(), **joint,
                          "fitted_to": "pixels and masks", "surface": surface,
                          "cost_ratio": round(fit.cost / fit.start_cost, 3)}
+
+
+def _moving_face(frames, masks, k: np.ndarray, whole: ShapePrior) -> np.ndarray | None:
+    """(H, W) bool frame-0 pixels of the face of the box the first frame's outline shows (:func:`fit_cuboid`)
+    that a hinge or slider on the still rest explains best (:func:`fit_pixel_joint`), when that explains the
+    frames clearly better than the face staying still; None otherwise."""
+    mask0 = np.asarray(masks[0], bool)
+    camera = Camera(k, np.eye(4), *mask0.shape[::-1])
+    box = fit_cuboid(mask0, camera, float(whole.centroid[2]), any_outline=True)  # feet, a rim: still a box
+    if box is None or box.iou < MIN_BOX_IOU:
+        return None
+    depth, still = box_depth(box, k, mask0), np.tile(np.eye(4), (len(masks), 1, 1))
+    best, best_ratio = None, _MOVING_FACE_RATIO
+    for axis in range(3):
+        for side in (-1.0, 1.0):
+            normal = side * box.axes[axis]
+            centre = box.centre + side * box.half[axis] * box.axes[axis]
+            if normal @ centre >= 0:  # faces away from the camera
+                continue
+            i, j = [m for m in range(3) if m != axis]
+            quad = np.array([centre + a * box.half[i] * box.axes[i] + b * box.half[j] * box.axes[j]
+                             for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
+            uv = (quad @ k.T)[:, :2] / (quad @ k.T)[:, 2:]
+            face = np.zeros(mask0.shape, np.uint8)
+            cv2.fillConvexPoly(face, np.rint(uv).astype(np.int32), 1)
+            face = face.astype(bool) & mask0
+            if face.sum() < _MIN_FACE_SHARE * mask0.sum():
+                continue
+            fit = fit_pixel_joint(frames, masks, k, still, mask0, face, depth, still)
+            if fit is not None and fit.cost < best_ratio * fit.start_cost:
+                best, best_ratio = face, fit.cost / fit.start_cost
+    return best
 
 
 def _still_tracks(tracks: Tracks) -> np.ndarray:
@@ -560,6 +597,16 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
             metadata["still_part"] = ("none: every pixel moves with the tracks" if still is None else
                                       f"found from the pixels: {still.sum() / masks[0].sum():.0%} of the object "
                                       "stays still")
+            if still is None and options.parts == 2 and rotation_angle_deg(whole_poses[:, :3, :3]).max() < 5.0:
+                # Two parts asked for, the tracks nearly all still and the moving part's colours alike (a plain
+                # lid on a chest of the same wood): a face of the box the outline shows that turns or slides.
+                with stages("still", "looking for a moving face", 1) as progress:
+                    face = _moving_face(frames, masks, k, whole)
+                    progress(1, 1)
+                if face is not None:
+                    still = np.asarray(masks[0], bool) & ~face
+                    metadata["still_part"] = (f"a face of the box moves, the rest ({still.sum() / masks[0].sum():.0%}"
+                                              " of the object) stays still")
             if still is not None:
                 beside_still = whole_poses.copy()
                 beside_still[:, :3, 3] *= whole.centroid[2]
@@ -619,8 +666,8 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
     if options.joints and len(parts) > 1:
         with stages("joints", "fitting joints", len(parts) - 1) as progress:
             metadata["joints"] = _fit_joints(parts, chains, chain_labels, masks, k, progress)
-        free = [i for i, note in metadata["joints"].items()
-                if (chain_labels == parts[int(i)].group).sum() < _PIXEL_JOINT_TRACKS]
+        free = [i for i, note in metadata["joints"].items()  # the pixels found it, or its tracks are few
+                if beside_still is not None or (chain_labels == parts[int(i)].group).sum() < _PIXEL_JOINT_TRACKS]
         if free:  # too few tracks to trust a joint fitted to them: look for one in the pixels
             with stages("pixel_joint", "fitting joints to the pixels", len(free)) as progress:
                 for done, index in enumerate(free, start=1):
