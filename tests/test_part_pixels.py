@@ -122,11 +122,12 @@ def test_extract_auto_keeps_a_plain_box_whole():
 def test_a_moving_face_of_the_box_is_found_from_the_pixels():
     """Where neither the tracks nor the colours show the moving part (a lid of the same wood as its chest), a
     face of the box the outline shows that a joint explains is taken for it: here the plain lid's top."""
-    from marionette.source.extract import _moving_face
+    from marionette.source.extract import _moving_face, _outline_box
     from marionette.source.rigid import ShapePrior
 
     scene = _still_body_scene("hinge", "hinge", 1, plain=True)
     truth = scene.part_masks[0]
     whole = ShapePrior.inflate(scene.masks[0], scene.camera.K)
-    face = _moving_face(scene.frames, scene.masks, scene.camera.K, whole)
+    box = _outline_box(scene.masks[0], scene.camera.K, whole)
+    face = _moving_face(scene.frames, scene.masks, scene.camera.K, box)
     assert face is not None and _iou(face, truth == 1) > 0.7  # 0.77: the top face, not the lid's front edge

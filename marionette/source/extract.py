@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import time
 import warnings
 from collections.abc import Iterator
@@ -46,7 +47,7 @@ from ..prior import CAMERA_EXTRA, SpatPrior
 from ..progress import ProgressCallback, Reporter
 from ..reconstruct.joint import JointOptions, joint_fit
 from ..reconstruct.quality import frame_iou
-from ..target.cuboid import MIN_BOX_IOU, box_depth, fit_cuboid
+from ..target.cuboid import MIN_BOX_IOU, Cuboid, box_depth, fit_cuboid
 from .camera_motion import estimate_camera_motion, to_world
 from .depth import DepthMaps, poses_from_depth
 from .focal import FOCAL_SCALES, estimate_focal
@@ -297,17 +298,16 @@ _SURFACE_TRACK_PX = 1.0
 
 
 def _fit_pixel_joint(parts: list[_Part], index: int, tracks: Tracks, track_labels: np.ndarray, frames, masks,
-                     whole: ShapePrior, k: np.ndarray, notes: dict[str, dict]) -> None:
+                     whole: ShapePrior, k: np.ndarray, box: Cuboid | None, notes: dict[str, dict]) -> None:
     """Part ``index``, too few tracks to trust the joint they fit (or none), refitted as the hinge or slider on
     the body that best explains its pixels and the masks (:func:`fit_pixel_joint`) when that beats its poses so
-    far. Its surface: the faces of the box the frame-0 outline shows, when it shows one (a plain cabinet or
-    chest, whose part's few tracks do not place it), else where at least :data:`_PIXEL_JOINT_POINTS` of its
+    far. Its surface: the faces of ``box`` (:func:`_outline_box`), when the frame-0 outline shows one (a plain
+    cabinet or chest, whose part's few tracks do not place it), else where at least :data:`_PIXEL_JOINT_POINTS` of its
     tracks put it. ``notes`` (the metadata's joints) say what was done."""
     part, on = parts[index], notes[str(index)].get("on_part", next(i for i in range(len(parts)) if i != index))
     mask0 = np.asarray(masks[0], bool)
-    box = fit_cuboid(mask0, Camera(k, np.eye(4), *mask0.shape[::-1]), float(whole.centroid[2]), any_outline=True)
     points = _surface_points(part, tracks, track_labels, k)
-    if box is not None and box.iou >= MIN_BOX_IOU:  # a box (a cabinet, a chest): its faces are the surface
+    if box is not None:  # a box (a cabinet, a chest): its faces are the surface
         depth, surface = box_depth(box, k, mask0), "the faces of the box its outline shows"
     elif points is not None and len(points) >= _PIXEL_JOINT_POINTS:
         depth, surface = part_depth(points, k, part.pixels, whole.front), "its tracks"
@@ -328,15 +328,20 @@ def _fit_pixel_joint(parts: list[_Part], index: int, tracks: Tracks, track_label
                          "cost_ratio": round(fit.cost / fit.start_cost, 3)}
 
 
-def _moving_face(frames, masks, k: np.ndarray, whole: ShapePrior) -> np.ndarray | None:
-    """(H, W) bool frame-0 pixels of the face of the box the first frame's outline shows (:func:`fit_cuboid`)
+def _outline_box(mask0: np.ndarray, k: np.ndarray, whole: ShapePrior) -> Cuboid | None:
+    """The box the first frame's outline shows (:func:`fit_cuboid`, any outline: feet or a rim still make a
+    box), its centre at the object's depth; None when no box covers the mask by :data:`MIN_BOX_IOU`."""
+    box = fit_cuboid(mask0, Camera(k, np.eye(4), *mask0.shape[::-1]), float(whole.centroid[2]), any_outline=True)
+    return box if box is not None and box.iou >= MIN_BOX_IOU else None
+
+
+def _moving_face(frames, masks, k: np.ndarray, box: Cuboid | None) -> np.ndarray | None:
+    """(H, W) bool frame-0 pixels of the face of ``box`` (:func:`_outline_box`)
     that a hinge or slider on the still rest explains best (:func:`fit_pixel_joint`), when that explains the
     frames clearly better than the face staying still; None otherwise."""
-    mask0 = np.asarray(masks[0], bool)
-    camera = Camera(k, np.eye(4), *mask0.shape[::-1])
-    box = fit_cuboid(mask0, camera, float(whole.centroid[2]), any_outline=True)  # feet, a rim: still a box
-    if box is None or box.iou < MIN_BOX_IOU:
+    if box is None:
         return None
+    mask0 = np.asarray(masks[0], bool)
     depth, still = box_depth(box, k, mask0), np.tile(np.eye(4), (len(masks), 1, 1))
     best, best_ratio = None, _MOVING_FACE_RATIO
     for axis in range(3):
@@ -570,6 +575,7 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
                                    **common)
         return dataclasses.replace(prior, extras=extras)
 
+    outline_box = functools.cache(lambda: _outline_box(np.asarray(masks[0], bool), k, whole))  # fitted once
     beside_still = None  # (T, 4, 4) the whole object's poses, when its pixels show a still part beside a moving one
     if options.parts == 1:
         chain_labels = np.zeros(chains.num_tracks, np.int64)
@@ -601,7 +607,7 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
                 # Two parts asked for, the tracks nearly all still and the moving part's colours alike (a plain
                 # lid on a chest of the same wood): a face of the box the outline shows that turns or slides.
                 with stages("still", "looking for a moving face", 1) as progress:
-                    face = _moving_face(frames, masks, k, whole)
+                    face = _moving_face(frames, masks, k, outline_box())
                     progress(1, 1)
                 if face is not None:
                     still = np.asarray(masks[0], bool) & ~face
@@ -672,7 +678,7 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
             with stages("pixel_joint", "fitting joints to the pixels", len(free)) as progress:
                 for done, index in enumerate(free, start=1):
                     _fit_pixel_joint(parts, int(index), chains, chain_labels, frames, masks, whole, k,
-                                     metadata["joints"])
+                                     outline_box(), metadata["joints"])
                     progress(done, len(free))
     if len(parts) > 1:
         with stages("labels", "labelling the parts' pixels", 1) as progress:
