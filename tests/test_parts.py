@@ -286,6 +286,18 @@ def test_a_whole_object_motion_does_not_hide_a_moving_part():
     assert pixel_accuracy(seg.pixel_labels, scene.part_masks[0]) > 0.9
 
 
+def test_a_drawer_sliding_out_of_a_turning_cabinet_is_split_from_it():
+    # The cabinet turns 8°; its drawer slides out of it. One compromise motion explains most tracks of both, and
+    # the second motion grown from it split the cabinet (its top against its front). The set of local motions
+    # that explains the tracks best finds the drawer (measured: 0.84 of the pixels right, 0.60 without it).
+    scene = make_scene("slide", object="drawer", seed=100, num_frames=32, size=(400, 300))
+    tracks = track(scene.frames, scene.masks)
+    whole = whole_object_poses(tracks, ShapePrior.inflate(scene.masks[0], scene.camera.K))
+    accuracy = {pool: pixel_accuracy(segment_parts(tracks, scene.masks[0], scene.camera.K, 2, whole=whole,
+                                                   pool=pool).pixel_labels, scene.part_masks[0]) for pool in (16, 0)}
+    assert accuracy[16] > 0.8 and accuracy[0] < 0.7
+
+
 @pytest.mark.parametrize("whole", [np.eye(4), np.full((32, 4, 4), np.nan)])
 def test_bad_whole_object_motions_are_refused(whole):
     scene, tracks = tracked("outofplane", 0)

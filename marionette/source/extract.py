@@ -168,6 +168,17 @@ class _Part:
     failed: dict[int, str]  # frames whose pose was interpolated, with the reason
     recovered: dict[int, str]  # frames the tracks lost whose pose was found again (alignment, hinge, PnP retried)
     points: np.ndarray | None = None  # (N, 3) its triangulated tracks at frame 0
+    surface: np.ndarray | None = None  # (H, W) frame-0 depth its joint was fitted on, when from its pixels
+    held: tuple | None = None  # (RigidFit, note): its points held on the outline's box, when that fits as well
+    fit_note: str | None = None  # how its poses were fitted, when not the usual way
+
+    def take_held(self, masks: np.ndarray) -> None:
+        """Its poses, failed and recovered frames, points and centre become those of :attr:`held`."""
+        fit, self.fit_note = self.held
+        self.poses, self.failed, self.points = fit.poses, dict(fit.failed_frames), fit.points[fit.triangulated]
+        self.recovered = dict(sorted({**fit.recovered_frames, **fit.retried_frames}.items()))
+        trusted = np.array([t for t in range(len(self.poses)) if t not in self.failed])
+        self.centre = carved_centroid(self.shape, masks, self.poses, trusted, points=self.points)
 
 
 def _strictness(options: ExtractOptions) -> bool | str:
@@ -220,6 +231,8 @@ _SLIDER_PREFERENCE_PX = 0.05
 #: A frame whose free pose failed counts as found by the hinge fit when this many of the part's tracks place its
 #: one angle (a free pose needs 6 inliers for its 6 degrees of freedom).
 _HINGE_MIN_TRACKS = 3
+#: A track's median reprojection error counts up to this (pixels) when the parts' motions are compared.
+_ERROR_CAP = 2.0
 #: How the note of such a frame in the metadata's ``recovered_frames`` begins (a hinge, a slider).
 HINGE_NOTE = "turned about the hinge"
 SLIDER_NOTE = "slid along the slider"
@@ -230,30 +243,65 @@ def _rigid_groups(seg) -> list[int]:
     return list(range(seg.num_parts)) + ([STATIC] if (seg.pixel_labels == STATIC).any() else [])
 
 
+def _joint_of(part: _Part, body_poses: np.ndarray, tracks: Tracks, track_labels: np.ndarray,
+              k: np.ndarray) -> HingeFit | SliderFit | None:
+    """The hinge or slider on a body moving by ``body_poses`` (T, 4, 4) that explains ``part``'s tracks best."""
+    if part.group == STATIC:
+        return None
+    members = track_labels == part.group
+    args = (tracks.uv[:, members], tracks.visible[:, members], body_poses, part.poses, k)
+    fits = [f for f in (fit_slider(*args), fit_hinge(*args)) if f is not None]
+    # A hinge with a far axis mimics a slider: the slider, one direction instead of an axis, unless the hinge
+    # explains the tracks clearly better.
+    return min(fits, key=lambda f: f.residual_px - (_SLIDER_PREFERENCE_PX if isinstance(f, SliderFit) else 0),
+               default=None)
+
+
+def _articulated_error(parts: list[_Part], poses: list[np.ndarray], tracks: Tracks, track_labels: np.ndarray,
+                       k: np.ndarray) -> float:
+    """Mean over the parts' tracks of each one's median reprojection error (pixels, capped at
+    :data:`_ERROR_CAP`) under its part's ``poses`` (each (T, 4, 4)), its point re-solved."""
+    errors = []
+    for part, part_poses in zip(parts, poses):
+        seen = (track_labels == part.group) & (tracks.visible.sum(axis=0) >= 2)
+        if seen.any():
+            obs = Observations(tracks.uv, tracks.visible, seen)
+            errors.append(obs.per_track_median(np.linalg.norm(obs.residuals(part_poses, k)[0], axis=1)))
+    return float(np.mean(np.minimum(np.concatenate(errors), _ERROR_CAP))) if errors else 0.0
+
+
 def _fit_joints(parts: list[_Part], tracks: Tracks, track_labels: np.ndarray, masks: np.ndarray, k: np.ndarray,
                 progress: ProgressCallback) -> dict[str, dict]:
     """Refit each part as a hinge on the body (it turns) or a slider (it travels without turning) where that
     fits its tracks as well as its free poses.
 
-    The body is the part that turns least (a box under its lid, a frame under its door: its pose is the
-    better determined); ties go to the larger. Updates the parts' poses and centres in place; returns, per
-    part index, the model kept (with its axis and range) and why.
+    The body is a still part when there is one; otherwise each part is tried as the body (its poses held on the
+    outline's box where it has them, :attr:`_Part.held`), and the one under which the joints explain all the
+    tracks best is kept: a drawer and its cabinet turn alike, and the part whose free fit turns least need not
+    be the cabinet. Updates the parts' poses and centres in place; returns, per part index, the model kept
+    (with its axis and range) and why.
     """
-    turns = [rotation_angle_deg(p.poses[:, :3, :3]).max() for p in parts]
-    on = min(range(len(parts)), key=lambda i: (round(turns[i], 6), -parts[i].pixels.sum()))
+    static = [i for i, p in enumerate(parts) if p.group == STATIC]
+    bodies = static[:1] or list(range(len(parts)))
+    total, done, best = len(bodies) * (len(parts) - 1), 0, None
+    for on in bodies:
+        body_poses = parts[on].poses if parts[on].held is None else parts[on].held[0].poses
+        fits = {}
+        for index in (i for i in range(len(parts)) if i != on):
+            fits[index] = _joint_of(parts[index], body_poses, tracks, track_labels, k)
+            done += 1
+            progress(done, total)
+        error = 0.0 if len(bodies) == 1 else _articulated_error(
+            parts, [body_poses if i == on else parts[i].poses if fits[i] is None else fits[i].poses
+                    for i in range(len(parts))], tracks, track_labels, k)
+        if best is None or error < best[0]:
+            best = (error, on, fits)
+    _, on, fits = best
     body, notes = parts[on], {}
-    others = [i for i in range(len(parts)) if i != on]
-    for done, index in enumerate(others, start=1):
+    if body.held is not None:
+        body.take_held(masks)
+    for index, fit in fits.items():
         part = parts[index]
-        members = track_labels == part.group
-        fit = None
-        if part.group != STATIC:
-            args = (tracks.uv[:, members], tracks.visible[:, members], body.poses, part.poses, k)
-            fits = [f for f in (fit_slider(*args), fit_hinge(*args)) if f is not None]
-            # A hinge with a far axis mimics a slider: the slider, one direction instead of an axis, unless the
-            # hinge explains the tracks clearly better.
-            fit = min(fits, key=lambda f: f.residual_px - (_SLIDER_PREFERENCE_PX if isinstance(f, SliderFit) else 0),
-                      default=None)
         kind = "hinge" if isinstance(fit, HingeFit) else "slider"
         if fit is None:
             notes[str(index)] = {"model": "free", "reason": f"it neither turns about an axis nor slides against part "
@@ -278,7 +326,6 @@ def _fit_joints(parts: list[_Part], tracks: Tracks, track_labels: np.ndarray, ma
             notes[str(index)] = {"model": kind, "on_part": on, "axis": np.round(fit.axis, 4).tolist(), **joint,
                                  "residual_px": round(fit.residual_px, 3),
                                  "free_residual_px": round(fit.free_residual_px, 3), "dropped_tracks": fit.dropped}
-        progress(done, len(others))
     return notes
 
 
@@ -318,7 +365,7 @@ def _fit_pixel_joint(parts: list[_Part], index: int, tracks: Tracks, track_label
     if fit is None or fit.cost >= fit.start_cost:
         notes[str(index)]["pixels"] = "no hinge or slider explains its pixels better than its poses"
         return
-    part.poses = fit.poses
+    part.poses, part.surface = fit.poses, depth
     part.failed.clear()
     joint = ({"point": np.round(fit.point, 4).tolist(),
               "range_deg": np.round(np.degrees([fit.values.min(), fit.values.max()]), 2).tolist()}
@@ -333,6 +380,31 @@ def _outline_box(mask0: np.ndarray, k: np.ndarray, whole: ShapePrior) -> Cuboid 
     box), its centre at the object's depth; None when no box covers the mask by :data:`MIN_BOX_IOU`."""
     box = fit_cuboid(mask0, Camera(k, np.eye(4), *mask0.shape[::-1]), float(whole.centroid[2]), any_outline=True)
     return box if box is not None and box.iou >= MIN_BOX_IOU else None
+
+
+#: A part's points held on the faces of the outline's box cost this many pixels per radius they move off them
+#: (:attr:`RigidOptions.depth_prior_weight`, 0.1 when free), and those poses are kept when their reprojection
+#: error is at most _HELD_RMS_RATIO times the free fit's.
+_HELD_DEPTH_PRIOR = 100.0
+_HELD_RMS_RATIO = 1.5
+
+
+def _box_held_fit(tracks: Tracks, pixels: np.ndarray, box: Cuboid, k: np.ndarray, options: RigidOptions,
+                  free) -> tuple:
+    """A part's poses with its points held on the faces of ``box`` (:func:`_outline_box`), and a note; the free
+    fit ``free`` (a :class:`RigidFit`) and None when that explains its tracks clearly worse.
+
+    A turn of a few degrees leaves the free fit's depths and turn traded against each other (the bas-relief
+    ambiguity: 3.9° off on a cabinet turning 8°, 0.2 px of reprojection error either way); the closed lid,
+    door or drawer of a box, and the box itself, lie on the faces of the box the first frame's outline shows.
+    """
+    front = box_depth(box, k, pixels)
+    shape = ShapePrior.from_depths(front, front * 1.05, k)
+    held = fit_rigid(tracks, shape, options=dataclasses.replace(options, depth_prior_weight=_HELD_DEPTH_PRIOR))
+    if held.reprojection_rms > _HELD_RMS_RATIO * free.reprojection_rms:
+        return free, None
+    return held, (f"points held on the outline's box ({held.reprojection_rms:.2f} px of reprojection error against "
+                  f"{free.reprojection_rms:.2f} px free)")
 
 
 def _moving_face(frames, masks, k: np.ndarray, box: Cuboid | None) -> np.ndarray | None:
@@ -385,13 +457,14 @@ def _surface_points(part: _Part, tracks: Tracks, track_labels: np.ndarray, k: np
 def _label_part_pixels(parts: list[_Part], tracks: Tracks, track_labels: np.ndarray, frames, masks,
                        whole: ShapePrior, k: np.ndarray) -> None:
     """Give each frame-0 object pixel to the part whose motion explains it (:func:`label_pixels`), each part's
-    surface at the depth of its tracks triangulated under its final poses; the parts' pixels, shapes and
-    centres follow."""
+    surface the one its joint was fitted on (:attr:`_Part.surface`), else at the depth of its tracks
+    triangulated under its final poses; the parts' pixels, shapes and centres follow."""
     vote = np.full(whole.front.shape, -1, np.int64)
     for index, part in enumerate(parts):
         vote[part.pixels] = index
     on = vote >= 0
-    depths = [part_depth(_surface_points(part, tracks, track_labels, k), k, on, whole.front) for part in parts]
+    depths = [part_depth(_surface_points(part, tracks, track_labels, k), k, on, whole.front) if part.surface is None
+              else np.where(on, part.surface, np.nan) for part in parts]
     labels = label_pixels(frames, masks, k, np.stack([p.poses for p in parts]), np.stack(depths), vote)
     for index, part in enumerate(parts):
         pixels = labels == index
@@ -631,6 +704,7 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
 
     track_labels = chain_labels[chain_of]  # (M,) each track's, from its chain
     parts, rms, recover_seconds = [], [], 0.0
+    free_fits = {}  # index in parts: its fit_rigid result, for the parts whose poses it gave
     with stages("poses", "fitting poses", len(groups) * num_frames) as progress:
         for i, g in enumerate(groups):
             pixels = pixel_labels == g
@@ -658,12 +732,24 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
                 poses, failed, points = fit.poses, fit.failed_frames, fit.points[fit.triangulated]
                 if beside_still is not None and len(failed) > num_frames // 2:  # its few tracks lost it
                     poses, failed, points = beside_still, {}, None
+                else:
+                    free_fits[len(parts)] = fit
                 recovered = dict(sorted({**fit.recovered_frames, **fit.retried_frames}.items()))
                 recover_seconds += fit.timings["recover"]
                 rms.append(fit.reprojection_rms)
             trusted = np.array([t for t in range(num_frames) if t not in failed])
             centre = carved_centroid(shape, masks, poses, trusted, points=points)
             parts.append(_Part(g, pixels, shape, poses, centre, shape.radius, failed, recovered, points))
+    if len(parts) > 1 and free_fits and STATIC not in groups and options.joints and outline_box() is not None:
+        # A closed box's parts lie on its faces at frame 0. The body's poses are taken from there when it is
+        # found (_fit_joints): its turn of a few degrees is what its free fit gets least right.
+        with stages("box_pose", "fitting the parts on the outline's box", len(free_fits)) as progress:
+            for done, (index, free) in enumerate(free_fits.items(), start=1):
+                part = parts[index]
+                held, note = _box_held_fit(tracks.subset(track_labels == part.group), part.pixels, outline_box(), k,
+                                           options.rigid, free)
+                part.held = None if note is None else (held, note)
+                progress(done, len(free_fits))
     if recover_seconds:  # its own line in the timings, out of the pose fit's
         stages.timings["poses"] -= recover_seconds
         stages.timings["recover"] = recover_seconds
@@ -707,6 +793,8 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
         track_parts[track_labels == part.group] = index
     extras.update(labels=labels, track_labels=track_parts)
 
+    if any(part.fit_note for part in parts):
+        metadata["part_fits"] = {str(index): part.fit_note or "free" for index, part in enumerate(parts)}
     failed = {f"{index}:{t}": reason for index, part in enumerate(parts) for t, reason in part.failed.items()}
     recovered = {f"{index}:{t}": note for index, part in enumerate(parts) for t, note in part.recovered.items()}
     metadata.update(failed_frames=failed, recovered_frames=recovered, no_motion=False,

@@ -3,9 +3,10 @@
 The tracks label the points they follow, and the pixels between them took the label of their nearest tracks;
 where a part has few tracks (a plain face) or its tracks are swept by another part (a cabinet's front as the
 drawer slides over it) that vote draws the border in the wrong place, and a plain door on a plain cabinet has
-too few tracks to be a part at all. Here each pixel is tested under every part's motion: lifted to the depth
-of frame 0's visible surface (the triangulated tracks of the part it is given to, interpolated), moved by the
-part's pose into later frames and compared there with the frame and the mask:
+too few tracks to be a part at all. Here each pixel is tested under every part's motion: lifted to that
+part's frame-0 surface (its triangulated tracks, interpolated: a still body's tracks place none, so a door's
+pixel is not judged where the body's guess puts it), moved by the part's pose into later frames and compared
+there with the frame and the mask:
 
     cost_l(p) = Σ_t min(|c_t(π(K (R_lt X(p) + T_lt))) − c_0(p) − g_lt|² / (3 σ²), τ²)     (τ² off the mask)
 
@@ -16,7 +17,7 @@ front of it, says nothing and costs a fixed ``_UNSEEN``. The costs are summed ov
 one piece of surface); pixels one motion explains clearly better than the others take its label, those no
 motion explains keep the tracks' label, and the rest (near a hinge, inside a plain face) are reached by a
 random walk on frame 0 stopped by its edges (Grady, "Random walks for image segmentation", PAMI 2006). A
-second round places the pixels and what hides what by the first round's labels.
+second round decides what hides what by the first round's labels.
 
 :func:`find_still_part` asks the same question of one motion and none: where the tracks show one moving part,
 a still part beside it (the cabinet under a plain door) shows as pixels that keep their very colour.
@@ -173,18 +174,17 @@ def _motion_costs(frames, masks, k: np.ndarray, poses: np.ndarray, depths: np.nd
     vv, uu = np.nonzero(labels >= 0)
     own = labels[vv, uu]
     rays = np.linalg.solve(k, np.stack([uu, vv, np.ones_like(uu)]).astype(np.float64))  # (3, N)
-    # Frame 0's visible surface: whichever part a pixel belongs to, it is where frame 0 sees it.
-    surface = np.full(labels.shape, np.nan)
-    surface[vv, uu] = depths[own, vv, uu]
-    points = rays * surface[vv, uu]  # (3, N)
-    normals = _normals(surface, k)[:, vv, uu]  # (3, N)
+    # A pixel tested as part p's is where p's surface is: a still body's tracks place no surface (no parallax),
+    # and the door beside it, placed there, would be judged by where it is not.
+    points = rays[None] * depths[:, vv, uu][:, None]  # (P, 3, N)
+    normals = np.stack([_normals(np.where(labels >= 0, d, np.nan), k)[:, vv, uu] for d in depths])  # (P, 3, N)
     cost = np.zeros((num_parts,) + labels.shape, np.float32)
     compared = np.zeros_like(cost)
     colour0 = _log_colour(frames[0])[vv, uu]  # (N, 3)
     for t in tested:
         image, mask = _log_colour(frames[t]), np.asarray(masks[t], np.uint8)
         rotations = poses[:, t, :3, :3]
-        moved = np.einsum("pij,jn->pin", rotations, points) + poses[:, t, :3, 3:4]  # (P, 3, N)
+        moved = np.einsum("pij,pjn->pin", rotations, points) + poses[:, t, :3, 3:4]  # (P, 3, N)
         pixel = np.einsum("ij,pjn->pin", k, moved)
         ahead = pixel[:, 2] > 1e-6
         z = np.where(ahead, pixel[:, 2], 1.0)
@@ -195,7 +195,7 @@ def _motion_costs(frames, masks, k: np.ndarray, poses: np.ndarray, depths: np.nd
         for part in range(num_parts):
             at = (mx[part], my[part])
             # A surface turned away from the camera (or edge-on), or behind another part, is not compared.
-            facing = (np.sum((rotations[part] @ normals) * moved[part], axis=0)
+            facing = (np.sum((rotations[part] @ normals[part]) * moved[part], axis=0)
                       < -_EDGE_ON * np.linalg.norm(moved[part], axis=0))
             hidden = np.zeros(len(vv), bool)
             for other in range(num_parts):
@@ -233,7 +233,7 @@ def label_pixels(frames, masks, k: np.ndarray, poses: np.ndarray, depths: np.nda
     window : side of the square over which a pixel's costs are summed.
     confidence : the cost margin, in capped frames, by which one part's motion must beat the others' for a
         pixel to be taken as told apart.
-    rounds : labellings, each placing the pixels (depth, what hides what) by the one before.
+    rounds : labellings, each deciding what hides what by the one before.
 
     Returns
     -------

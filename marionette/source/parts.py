@@ -39,7 +39,14 @@ with spatial smoothing in the spirit of PEARL (Isack & Boykov, IJCV 2012):
    part exists, the motions of halves of the object, since the motions found
    may explain every track within the threshold, a compromise between parts
    that move almost alike (the cars of ``davis_train``), and leave no track
-   unexplained to seed another part.
+   unexplained to seed another part. One candidate replaces the motions
+   found instead of adding to them: from a pool of local motions (patches
+   spread over the object, each refitted to the tracks it explains) and
+   the motions found, the set of one more part that explains the tracks
+   best (greedy, then swaps; PEARL's proposals, Isack & Boykov, IJCV 2012).
+   A part that moves little against the rest (a drawer sliding out of a
+   turning cabinet) needs it: the compromise found first explains most of
+   its tracks, and the motions grown from there split the body instead.
 3. Refinement: labels by iterated conditional modes on a k-nearest-neighbour
    graph of the tracks (neighbours in every frame where tracks are seeded),
    cost ``n_m ρ(e_ml) + β #{neighbours labelled otherwise}``, with ``e_ml``
@@ -448,6 +455,27 @@ def _estimate_noise(problem: _Problem, uv: np.ndarray, patches: int, size: int) 
     return float(np.median(np.concatenate(rms)))
 
 
+def _grown(problem: _Problem, motion: _Motion, probe: np.ndarray, grow: int) -> tuple[_Motion, np.ndarray, float]:
+    """``motion`` refitted to the tracks of ``probe`` it explains while that lowers its cost over ``probe`` (MSAC).
+
+    Returns the motion, its errors over ``probe`` and its cost.
+    """
+    threshold = problem.cap * problem.noise**2
+    errors = _errors(problem, motion, probe)
+    cost = _robust(problem, errors, probe).sum()
+    for _ in range(grow):
+        inliers = probe[errors < threshold]
+        if len(inliers) < 6:
+            break
+        refit = _fit(problem, inliers)
+        refit_errors = _errors(problem, refit, probe)
+        refit_cost = _robust(problem, refit_errors, probe).sum()
+        if refit_cost >= cost:
+            break
+        motion, errors, cost = refit, refit_errors, refit_cost
+    return motion, errors, cost
+
+
 def _new_part(problem: _Problem, uv: np.ndarray, pool: np.ndarray, hypotheses: int, patch: int,
               grow: int = 3) -> _Motion:
     """Best rigid motion for the tracks ``pool`` no model explains yet (a sequential RANSAC step).
@@ -460,28 +488,48 @@ def _new_part(problem: _Problem, uv: np.ndarray, pool: np.ndarray, hypotheses: i
     a count of inliers, it prefers a motion that explains its tracks exactly
     to a compromise between two parts that explains both roughly.
     """
-    threshold = problem.cap * problem.noise**2
     probe = pool if len(pool) <= 4 * problem.fit_tracks else np.sort(
         problem.rng.choice(pool, 4 * problem.fit_tracks, replace=False))
     first = pool[problem.vis[0, pool]]
-    best, best_cost = None, np.inf
-    for members in [pool] + [_patch(uv[0], first, s, patch) for s in _spread(uv[0], first, hypotheses)]:
-        motion = _fit(problem, members)
-        errors = _errors(problem, motion, probe)
-        cost = _robust(problem, errors, probe).sum()
-        for _ in range(grow):
-            inliers = probe[errors < threshold]
-            if len(inliers) < 6:
-                break
-            refit = _fit(problem, inliers)
-            refit_errors = _errors(problem, refit, probe)
-            refit_cost = _robust(problem, refit_errors, probe).sum()
-            if refit_cost >= cost:
-                break
-            motion, errors, cost = refit, refit_errors, refit_cost
-        if cost < best_cost:
-            best, best_cost = motion, cost
-    return best
+    fits = [_grown(problem, _fit(problem, members), probe, grow)
+            for members in [pool] + [_patch(uv[0], first, s, patch) for s in _spread(uv[0], first, hypotheses)]]
+    return min(fits, key=lambda fit: fit[2])[0]
+
+
+def _patch_motions(problem: _Problem, uv: np.ndarray, count: int, patch: int, grow: int = 3) -> list:
+    """The motions of ``count`` patches of ``patch`` tracks spread over the object at frame 0, each grown over all
+    tracks (:func:`_grown`): a pool of local motions from which sets of parts are drawn (:func:`_best_set`)."""
+    first = np.nonzero(problem.vis[0])[0]
+    every = np.arange(problem.vis.shape[1])
+    return [_grown(problem, _fit(problem, _patch(uv[0], first, seed, patch)), every, grow)[:2]
+            for seed in _spread(uv[0], first, count)]
+
+
+def _best_set(costs: np.ndarray, base: np.ndarray, size: int) -> list[int]:
+    """Rows of ``costs`` (N, U) whose track-wise minimum, with ``base`` (U,), sums lowest: ``size`` of them.
+
+    Greedy, then each chosen row swapped for a better one while any is (a local search on the labelling cost
+    without the smoothness term, for PEARL-style proposals; Isack & Boykov, IJCV 2012).
+    """
+    chosen: list[int] = []
+    for _ in range(min(size, len(costs))):
+        current = np.minimum.reduce([base] + [costs[i] for i in chosen])
+        gains = np.minimum(costs, current).sum(axis=1)
+        gains[chosen] = np.inf
+        chosen.append(int(np.argmin(gains)))
+
+    def total(rows: list[int]) -> float:
+        return float(np.minimum.reduce([base] + [costs[i] for i in rows]).sum())
+
+    improved = True
+    while improved:
+        improved = False
+        for slot in range(len(chosen)):
+            for row in range(len(costs)):
+                trial = chosen[:slot] + [row] + chosen[slot + 1:]
+                if row not in chosen and total(trial) < total(chosen) - 1e-9:
+                    chosen, improved = trial, True
+    return chosen
 
 
 class _Level(NamedTuple):
@@ -539,12 +587,13 @@ def _refine(problem: _Problem, graph: sparse.csr_matrix, beta: float, motions: l
 
 def _grow(problem: _Problem, uv: np.ndarray, graph: sparse.csr_matrix, beta: float, static: bool, max_parts: int,
           min_part: int, penalty: float, hypotheses: int, patch: int, rounds: int, auto: bool,
-          whole: _Motion | None = None, margin: float = 0.0) -> dict[int, _Level]:
+          whole: _Motion | None = None, margin: float = 0.0, pool: int = 16) -> dict[int, _Level]:
     """Add moving parts one at a time, refining all labels and motions after each; every level by P.
 
     ``auto``: stop after the first level whose score is not below the best before. ``whole``: a motion
     of the whole object, one more candidate for the first part, taken only when its level scores
     better than the others by more than ``margin`` (a compromise fit's motion is the least repeatable).
+    ``pool``: local motions drawn once (:func:`_patch_motions`), whose best set is one more candidate.
     """
     num_frames, num_tracks = problem.vis.shape
     motions = [_static_motion(num_frames)] if static else []
@@ -552,26 +601,38 @@ def _grow(problem: _Problem, uv: np.ndarray, graph: sparse.csr_matrix, beta: flo
     errors = np.stack([_errors(problem, m) for m in motions]) if motions else np.zeros((0, num_tracks))
     threshold = problem.cap * problem.noise**2
     first = np.nonzero(problem.vis[0])[0]
+    local = _patch_motions(problem, uv, pool, patch) if pool else []
     levels: dict[int, _Level] = {}
     for _ in range(max_parts):
         # A part must show on the object at frame 0 (its poses map those points): candidates are
         # seeded there. The motion of the tracks no motion explains, when enough frame-0 tracks are
         # left; and once a part exists, the motions of halves of the object, since the motions found
         # may explain every track roughly, a compromise between parts that move almost alike (the
-        # cars of a train).
+        # cars of a train). Each is added to the motions found so far; one more candidate replaces
+        # them: the set of local motions (and those found) that explains the tracks best, which a
+        # part that moves little against the rest (a drawer sliding out of a turning cabinet) needs,
+        # as the compromise found first explains its tracks too.
         explained = errors.min(axis=0) < threshold if len(errors) else np.zeros(num_tracks, bool)
-        candidates = []  # (motion, handicap on its level's score)
+        added = []  # (motion, handicap on its level's score)
         if (~explained & problem.vis[0]).sum() >= min_part:
-            candidates.append((_new_part(problem, uv, np.nonzero(~explained)[0], hypotheses, patch), 0.0))
+            added.append((_new_part(problem, uv, np.nonzero(~explained)[0], hypotheses, patch), 0.0))
         if len(motions) > first_moving:
-            candidates += [(_fit(problem, _patch(uv[0], first, seed, len(first) // 2)), 0.0)
-                           for seed in _spread(uv[0], first, hypotheses)]
+            added += [(_fit(problem, _patch(uv[0], first, seed, len(first) // 2)), 0.0)
+                      for seed in _spread(uv[0], first, hypotheses)]
         elif whole is not None:
-            candidates.append((whole, margin))
+            added.append((whole, margin))
+        candidates = [(motions + [motion], np.vstack([errors, _errors(problem, motion)]), handicap)
+                      for motion, handicap in added]
+        if local:
+            proposals = local + list(zip(motions[first_moving:], errors[first_moving:]))
+            base = _robust(problem, errors[0]) if static else np.full(num_tracks, np.inf)
+            rows = _best_set(np.stack([_robust(problem, e) for _, e in proposals]), base,
+                             len(motions) - first_moving + 1)
+            candidates.append((motions[:first_moving] + [proposals[i][0] for i in rows],
+                               np.vstack([errors[:first_moving]] + [proposals[i][1][None] for i in rows]), 0.0))
         best, best_rank = None, np.inf
-        for motion, handicap in candidates:
-            level = _refine(problem, graph, beta, motions + [motion], np.vstack([errors, _errors(problem, motion)]),
-                            first_moving, min_part, rounds)
+        for candidate, candidate_errors, handicap in candidates:
+            level = _refine(problem, graph, beta, candidate, candidate_errors, first_moving, min_part, rounds)
             if len(level.motions) > len(motions) and level.score + handicap < best_rank:
                 best, best_rank = level, level.score + handicap
         if best is None:
@@ -628,7 +689,7 @@ def segment_parts(tracks: Tracks, object_mask0: np.ndarray, K: np.ndarray, num_p
                   penalty: float = 3.0,
                   smoothness: float = 3.0, neighbours: int = 8, min_length: int = 4, static: bool = True,
                   max_frames: int = 24, hypotheses: int = 4, patch: int = 24, fit_tracks: int = 1000,
-                  rounds: int = 2, seed: int = 0, whole: np.ndarray | None = None) -> PartSegmentation:
+                  rounds: int = 2, pool: int = 16, seed: int = 0, whole: np.ndarray | None = None) -> PartSegmentation:
     """Segment an object's tracks into rigid parts (see the module docstring for the method).
 
     Parameters
@@ -674,6 +735,10 @@ def segment_parts(tracks: Tracks, object_mask0: np.ndarray, K: np.ndarray, num_p
         Local hypotheses per new part (patches, and halves of the object) and
         the patches' number of tracks; most tracks a motion is fitted on
         (drawn at random); label/motion refinement rounds.
+    pool : int
+        Local motions (of patches spread over the object) from which the set
+        of parts that explains the tracks best is one more candidate at
+        each count; 0: none.
     seed : int
         Seed of the random draws.
     whole : ndarray, shape (T, 4, 4), optional
@@ -748,7 +813,7 @@ def segment_parts(tracks: Tracks, object_mask0: np.ndarray, K: np.ndarray, num_p
 
     margin = _SELECTION_MARGIN * penalty * problem.cap * 6 * (len(kept) - 1)  # of one part's penalty
     levels = _grow(problem, uv, graph, beta, static, max_parts if auto else int(num_parts), min_part,
-                   penalty * problem.cap, hypotheses, patch, rounds, auto, whole=start, margin=margin)
+                   penalty * problem.cap, hypotheses, patch, rounds, auto, whole=start, margin=margin, pool=pool)
     if not levels:  # everything is static
         num_tracks = vis.shape[1]
         chosen = _Level([_static_motion(len(vis))], np.zeros(num_tracks, np.int64), np.zeros((1, num_tracks)), 0.0)
