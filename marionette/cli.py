@@ -440,6 +440,9 @@ def _extract(source: Path, masks, depth, focal, parts: str, start: int, end, str
         how = " or ".join(ways)
         session.reporter.detail(f"  {len(recovered)} part-frames the tracks lost were recovered {how}: "
                                 f"{', '.join(recovered)}")
+    for part, fit in (prior.metadata.get("part_fits") or {}).items():
+        if fit != "free":
+            session.reporter.detail(f"  part {part}: {fit}")
     for part, joint in (prior.metadata.get("joints") or {}).items():
         session.reporter.detail(f"  part {part}: {_joint_line(joint)}")
     if plot is not None:
