@@ -8,7 +8,7 @@ from scipy.spatial.transform import Rotation
 
 from marionette.geometry import rotation_angle_deg
 from marionette.source.extract import _HINGE_TOLERANCE_PX
-from marionette.source.hinge import _initial_hinge, fit_hinge, hinge_poses
+from marionette.source.hinge import _initial_hinge, _wrapped, fit_hinge, hinge_poses
 from marionette.source.joint_tracks import Observations
 
 K = np.array([[300.0, 0, 160], [0, 300.0, 120], [0, 0, 1]])
@@ -148,3 +148,8 @@ def test_lid_frames_the_free_fit_loses_are_found_about_the_hinge():
     assert len(recovered) >= 3 and all(note.startswith(HINGE_NOTE) for note in meta["recovered_frames"].values())
     error = rotation_angle_deg(np.swapaxes(prior.poses[0, :, :3, :3], -1, -2) @ scene.poses[1, :, :3, :3])
     assert np.median(error[1:]) < 5.0 and error[recovered].max() < 5.0
+
+
+def test_angles_a_whole_number_of_turns_away_are_brought_back():
+    angles = np.radians([0.0, 30.0, 79.0, -120.0])
+    np.testing.assert_allclose(_wrapped(angles + 2 * np.pi * np.array([0, 1, 140, -3])), angles, atol=1e-9)

@@ -130,15 +130,21 @@ def fit_hinge(uv: np.ndarray, visible: np.ndarray, body_poses: np.ndarray, free_
         if fitted is None:
             continue
         axis, point, key_angles, points, tracks, dropped = fitted
-        angles = np.interp(np.arange(len(body_poses)), key, key_angles)
+        angles = np.interp(np.arange(len(body_poses)), key, _wrapped(key_angles))
         for t in np.setdiff1d(np.arange(len(body_poses)), key):
             angles[t] = _frame_angle(uv[t, tracks], visible[t, tracks], points, body_poses[t], axis, point,
                                      angles[t], k)
+        angles = _wrapped(angles)
         poses = hinge_poses(body_poses, axis, point, angles)
         hinged = float(np.median(np.linalg.norm(every.residuals(poses, k)[0], axis=1)))
         if best is None or hinged < best.residual_px:
             best = HingeFit(poses, axis, point, angles, hinged, free, dropped, visible[:, tracks].sum(axis=1))
     return best
+
+
+def _wrapped(angles: np.ndarray) -> np.ndarray:
+    """``angles`` (radians) in [-π, π): the same turns (a fit can land a whole number of turns away)."""
+    return (np.asarray(angles) + np.pi) % (2 * np.pi) - np.pi
 
 
 def _fit_key_frames(uv, visible, body_poses, free_poses, k, axis0, point0, angles0, min_track_frames,

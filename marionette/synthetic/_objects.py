@@ -76,7 +76,8 @@ class Face:
 
 @dataclass(frozen=True)
 class Shape:
-    """An object: parts (part 0 the largest), each a tuple of faces, in object-local coordinates.
+    """An object: parts (part 0 the body, the largest but for a screen's stand), each a tuple of faces, in
+    object-local coordinates.
 
     ``hinge`` is ``(point, direction)``, two (3,) arrays: the line about which
     part 1 turns relative to part 0, with positive angles opening it; ``slide``
@@ -191,6 +192,27 @@ def make_door(geom: np.random.Generator, tex: np.random.Generator, target: bool 
     door = _box_faces([0.0, 0.0, -d / 2 - thick / 2], (0.48 * w, 0.48 * h, thick / 2), hues[6:], tex, target)
     # Turning about +y by a positive angle carries a point on the +x side of the axis towards -z.
     return Shape((cabinet, door), (np.array([side * 0.48 * w, 0.0, -d / 2]), np.array([0.0, -side, 0.0])))
+
+
+def make_screen(geom: np.random.Generator, tex: np.random.Generator, target: bool = False) -> Shape:
+    """A screen on a stand, swivelling about the stand's upright post.
+
+    Part 0 is the stand (a flat base and a post), part 1 the screen (a thin panel in front of the post's top);
+    positive hinge angles turn the screen's right edge (+x) towards -z. The local origin is the centre of the
+    whole object's bounding box.
+    """
+    w, sh = geom.uniform(1.4, 1.7), geom.uniform(0.8, 1.0)
+    h = sh + geom.uniform(0.45, 0.6)
+    base_t, post, panel = 0.08, 0.06, 0.05
+    hues = _hues(tex, 18, target)
+    base = _box_faces([0.0, h / 2 - base_t / 2, 0.0], (0.3 * w, base_t / 2, 0.3), hues[:6], tex, target)
+    post_h = h - base_t - 0.2 * sh
+    stand = base + _box_faces([0.0, h / 2 - base_t - post_h / 2, 0.0], (post, post_h / 2, post), hues[6:12], tex,
+                              target)
+    screen = _box_faces([0.0, -h / 2 + sh / 2, -post - panel / 2], (w / 2, sh / 2, panel / 2), hues[12:], tex,
+                        target)
+    # Turning about -y (up) by a positive angle carries a point on the +x side towards -z.
+    return Shape((stand, screen), (np.zeros(3), np.array([0.0, -1.0, 0.0])))
 
 
 def make_drawer(geom: np.random.Generator, tex: np.random.Generator, target: bool = False) -> Shape:

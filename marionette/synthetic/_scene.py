@@ -12,12 +12,12 @@ from ..geometry import axis_angle_to_matrix, invert_transform, make_transform
 from ..prior import SpatPrior
 from ._motions import plan_camera, plan_motion
 from ._objects import (Shape, make_box, make_car, make_cylinder, make_door, make_drawer, make_hinged_box, make_rod,
-                       make_vase)
+                       make_screen, make_vase)
 from ._render import pixel_depth, render_shape, resolve, view_background
 from ._textures import background_texture
 
 MOTIONS = ("translation", "inplane", "outofplane", "oscillation", "hinge", "slide")
-OBJECTS = ("box", "hinge", "door", "drawer")
+OBJECTS = ("box", "hinge", "door", "drawer", "screen")
 #: Objects ``render_object_image`` can draw.
 TARGET_OBJECTS = ("box", "hinge", "cylinder", "vase", "rod", "car")
 BACKGROUNDS = ("textured", "plain")
@@ -30,6 +30,7 @@ _PLAIN_BACKGROUND = np.array([0.86, 0.86, 0.84], np.float32)
 #: far enough that a moving camera sees it turn almost like a rotation homography.
 _BACKGROUND_DEPTH = 10.0
 _BUILDERS = {"box": make_box, "hinge": make_hinged_box, "door": make_door, "drawer": make_drawer,
+             "screen": make_screen,
              "cylinder": make_cylinder, "vase": make_vase, "rod": make_rod, "car": make_car}
 
 
@@ -201,8 +202,9 @@ def make_scene(motion: str, *, object: str | None = None, num_frames: int = 48,
         50-80 % of its depth).
     object : str, optional
         ``"box"``, ``"hinge"`` (a body with a lid: two parts), ``"door"`` (a
-        cabinet with a door on an upright hinge, for the hinge motion too) or
-        ``"drawer"`` (a cabinet with a drawer). Defaults to the hinge object
+        cabinet with a door on an upright hinge, for the hinge motion too),
+        ``"screen"`` (a screen swivelling on its stand's post, for the hinge
+        motion too) or ``"drawer"`` (a cabinet with a drawer). Defaults to the hinge object
         for the hinge motion, the drawer for the slide and ``"box"``
         otherwise; with other motions the parts of an object move together.
     num_frames : int
@@ -240,8 +242,8 @@ def make_scene(motion: str, *, object: str | None = None, num_frames: int = 48,
     obj = {"hinge": "hinge", "slide": "drawer"}.get(motion, "box") if object is None else object
     if obj not in OBJECTS:
         raise InputError(f"object must be one of {', '.join(OBJECTS)}, got {obj!r}")
-    if motion == "hinge" and obj not in ("hinge", "door"):
-        raise InputError("the hinge motion needs the hinge or the door object")
+    if motion == "hinge" and obj not in ("hinge", "door", "screen"):
+        raise InputError("the hinge motion needs the hinge, door or screen object")
     if motion == "slide" and obj != "drawer":
         raise InputError("the slide motion needs the drawer object")
     if isinstance(num_frames, bool) or not isinstance(num_frames, (int, np.integer)) or num_frames < 2:
