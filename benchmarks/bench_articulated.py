@@ -228,8 +228,9 @@ READING = (
     "cabinet a hinge fits a drawer's tracks better than a slider (0.2-0.4 px against 0.4-0.5 px, the slider "
     "reaching no better from the true direction); a plain body that turns a few degrees is taken for a still "
     "one (its faces keep their colour); a lid's angle from its tracks comes out up to a tenth short or long; "
-    "a screen on a small stand that turns is taken as the body, the stand hinged on it (the joints explain the "
-    "tracks best that way), and the stand's poses, carried by the screen's free fit, come out 13-19° off.")
+    "a screen on a small stand that turns is fitted with the stand hinged on it (the joints explain the tracks "
+    "best that way; the joint is then told from the stand), and the stand's poses, carried by the screen's free "
+    "fit, come out 13-19° off, the axis 11-17°.")
 
 
 def main() -> None:

@@ -270,6 +270,19 @@ def _articulated_error(parts: list[_Part], poses: list[np.ndarray], tracks: Trac
     return float(np.mean(np.minimum(np.concatenate(errors), _ERROR_CAP))) if errors else 0.0
 
 
+def _based_on_the_stiller(parts: list[_Part], on: int, notes: dict[str, dict]) -> dict[str, dict]:
+    """The joint of two parts told with the one that turns less as its base: fitted the other way round (a
+    screen's tracks placing it better than its small stand's place the stand), part ``on`` turning on its
+    hinge (slider) is the other part turning back about the same line (sliding back along it)."""
+    (other, note), = notes.items()
+    turns = [rotation_angle_deg(part.poses[:, :3, :3]).max() for part in parts]
+    if note["model"] == "free" or turns[int(other)] >= turns[on]:
+        return notes
+    span = "range_deg" if note["model"] == "hinge" else "range"
+    return {str(on): {**note, "on_part": int(other), span: [0.0 - note[span][1], 0.0 - note[span][0]],
+                      "fitted": f"as part {other} on part {on}, told from part {other}, which turns less"}}
+
+
 def _fit_joints(parts: list[_Part], tracks: Tracks, track_labels: np.ndarray, masks: np.ndarray, k: np.ndarray,
                 progress: ProgressCallback) -> dict[str, dict]:
     """Refit each part as a hinge on the body (it turns) or a slider (it travels without turning) where that
@@ -326,6 +339,8 @@ def _fit_joints(parts: list[_Part], tracks: Tracks, track_labels: np.ndarray, ma
             notes[str(index)] = {"model": kind, "on_part": on, "axis": np.round(fit.axis, 4).tolist(), **joint,
                                  "residual_px": round(fit.residual_px, 3),
                                  "free_residual_px": round(fit.free_residual_px, 3), "dropped_tracks": fit.dropped}
+    if not static and len(parts) == 2:
+        notes = _based_on_the_stiller(parts, on, notes)
     return notes
 
 
