@@ -405,9 +405,9 @@ _HELD_RMS_RATIO = 1.5
 
 
 def _box_held_fit(tracks: Tracks, pixels: np.ndarray, box: Cuboid, k: np.ndarray, options: RigidOptions,
-                  free) -> tuple:
-    """A part's poses with its points held on the faces of ``box`` (:func:`_outline_box`), and a note; the free
-    fit ``free`` (a :class:`RigidFit`) and None when that explains its tracks clearly worse.
+                  free) -> tuple | None:
+    """A part's fit (a :class:`RigidFit`) with its points held on the faces of ``box`` (:func:`_outline_box`),
+    and a note; None when that explains its tracks clearly worse than its free fit ``free``.
 
     A turn of a few degrees leaves the free fit's depths and turn traded against each other (the bas-relief
     ambiguity: 3.9° off on a cabinet turning 8°, 0.2 px of reprojection error either way); the closed lid,
@@ -417,7 +417,7 @@ def _box_held_fit(tracks: Tracks, pixels: np.ndarray, box: Cuboid, k: np.ndarray
     shape = ShapePrior.from_depths(front, front * 1.05, k)
     held = fit_rigid(tracks, shape, options=dataclasses.replace(options, depth_prior_weight=_HELD_DEPTH_PRIOR))
     if held.reprojection_rms > _HELD_RMS_RATIO * free.reprojection_rms:
-        return free, None
+        return None
     return held, (f"points held on the outline's box ({held.reprojection_rms:.2f} px of reprojection error against "
                   f"{free.reprojection_rms:.2f} px free)")
 
@@ -761,9 +761,8 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
         with stages("box_pose", "fitting the parts on the outline's box", len(free_fits)) as progress:
             for done, (index, free) in enumerate(free_fits.items(), start=1):
                 part = parts[index]
-                held, note = _box_held_fit(tracks.subset(track_labels == part.group), part.pixels, outline_box(), k,
-                                           options.rigid, free)
-                part.held = None if note is None else (held, note)
+                part.held = _box_held_fit(tracks.subset(track_labels == part.group), part.pixels, outline_box(), k,
+                                          options.rigid, free)
                 progress(done, len(free_fits))
     if recover_seconds:  # its own line in the timings, out of the pose fit's
         stages.timings["poses"] -= recover_seconds
