@@ -226,6 +226,10 @@ def _propagate_labels(tracks: Tracks, labels: np.ndarray, unlabelled: int, radiu
 #: A hinge is kept when its median reprojection error exceeds the free poses' by no more than this (pixels):
 #: within the tracks' noise, the simpler model.
 _HINGE_TOLERANCE_PX = 0.25
+#: Joints are fitted to and judged by the tracks seen at frame 0 no nearer than _SEAM_PX pixels to another part
+#: (:func:`_off_the_seams`), and those seeded later; unless that leaves a part fewer than _SEAM_MIN_TRACKS.
+_SEAM_PX = 4.0
+_SEAM_MIN_TRACKS = 12
 #: A slider is kept over a hinge unless the hinge's median reprojection error is lower by more than this (pixels).
 _SLIDER_PREFERENCE_PX = 0.05
 #: A frame whose free pose failed counts as found by the hinge fit when this many of the part's tracks place its
@@ -255,6 +259,27 @@ def _joint_of(part: _Part, body_poses: np.ndarray, tracks: Tracks, track_labels:
     # explains the tracks clearly better.
     return min(fits, key=lambda f: f.residual_px - (_SLIDER_PREFERENCE_PX if isinstance(f, SliderFit) else 0),
                default=None)
+
+
+def _off_the_seams(tracks: Tracks, track_labels: np.ndarray, parts: list[_Part]) -> np.ndarray:
+    """(M,) the tracks' ``track_labels``, :data:`OUTLIER` for those seen at frame 0 within :data:`_SEAM_PX` pixels
+    of another part's frame-0 pixels. A track on the seam between two parts has its window on both and follows
+    neither: a joint fitted to such tracks bends towards what they share, and judged by them it loses to one
+    that explains less (a drawer's seam tracks made a hinge fit its turning cabinet better than a slider, and
+    the cabinet hinged on the drawer look likelier)."""
+    labels = track_labels.copy()
+    h, w = parts[0].pixels.shape
+    at0 = tracks.visible[0]
+    uv = np.round(tracks.uv[0, at0]).astype(int)
+    rows, cols = np.clip(uv[:, 1], 0, h - 1), np.clip(uv[:, 0], 0, w - 1)
+    for part in parts:
+        others = np.any([other.pixels for other in parts if other is not part], axis=0)
+        distance = cv2.distanceTransform((~others).astype(np.uint8), cv2.DIST_L2, 3)
+        mine = track_labels[at0] == part.group
+        seam = np.flatnonzero(at0)[mine & (distance[rows, cols] < _SEAM_PX)]
+        if (track_labels == part.group).sum() - len(seam) >= _SEAM_MIN_TRACKS:
+            labels[seam] = OUTLIER
+    return labels
 
 
 def _articulated_error(parts: list[_Part], poses: list[np.ndarray], tracks: Tracks, track_labels: np.ndarray,
@@ -296,17 +321,18 @@ def _fit_joints(parts: list[_Part], tracks: Tracks, track_labels: np.ndarray, ma
     """
     static = [i for i, p in enumerate(parts) if p.group == STATIC]
     bodies = static[:1] or list(range(len(parts)))
+    off_seams = _off_the_seams(tracks, track_labels, parts)
     total, done, best = len(bodies) * (len(parts) - 1), 0, None
     for on in bodies:
         body_poses = parts[on].poses if parts[on].held is None else parts[on].held[0].poses
         fits = {}
         for index in (i for i in range(len(parts)) if i != on):
-            fits[index] = _joint_of(parts[index], body_poses, tracks, track_labels, k)
+            fits[index] = _joint_of(parts[index], body_poses, tracks, off_seams, k)
             done += 1
             progress(done, total)
         error = 0.0 if len(bodies) == 1 else _articulated_error(
             parts, [body_poses if i == on else parts[i].poses if fits[i] is None else fits[i].poses
-                    for i in range(len(parts))], tracks, track_labels, k)
+                    for i in range(len(parts))], tracks, off_seams, k)
         if best is None or error < best[0]:
             best = (error, on, fits)
     _, on, fits = best
