@@ -261,6 +261,12 @@ def _joint_of(part: _Part, body_poses: np.ndarray, tracks: Tracks, track_labels:
                default=None)
 
 
+def _kept(fit: HingeFit | SliderFit | None) -> bool:
+    """Whether a joint explains its part's tracks about as well as its free poses (within
+    :data:`_HINGE_TOLERANCE_PX`): the simpler model, kept."""
+    return fit is not None and fit.residual_px <= fit.free_residual_px + _HINGE_TOLERANCE_PX
+
+
 def _off_the_seams(tracks: Tracks, track_labels: np.ndarray, parts: list[_Part]) -> np.ndarray:
     """(M,) the tracks' ``track_labels``, :data:`OUTLIER` for those seen at frame 0 within :data:`_SEAM_PX` pixels
     of another part's frame-0 pixels. A track on the seam between two parts has its window on both and follows
@@ -314,10 +320,10 @@ def _fit_joints(parts: list[_Part], tracks: Tracks, track_labels: np.ndarray, ma
     fits its tracks as well as its free poses.
 
     The body is a still part when there is one; otherwise each part is tried as the body (its poses held on the
-    outline's box where it has them, :attr:`_Part.held`), and the one under which the joints explain all the
-    tracks best is kept: a drawer and its cabinet turn alike, and the part whose free fit turns least need not
-    be the cabinet. Updates the parts' poses and centres in place; returns, per part index, the model kept
-    (with its axis and range) and why.
+    outline's box where it has them, :attr:`_Part.held`), and the one on which the other parts' joints are kept
+    (:func:`_kept`), and then explain the tracks best, is taken: a drawer and its cabinet turn alike, and the
+    part whose free fit turns least need not be the cabinet. Updates the parts' poses and centres in place;
+    returns, per part index, the model kept (with its axis and range) and why.
     """
     static = [i for i, p in enumerate(parts) if p.group == STATIC]
     bodies = static[:1] or list(range(len(parts)))
@@ -330,11 +336,13 @@ def _fit_joints(parts: list[_Part], tracks: Tracks, track_labels: np.ndarray, ma
             fits[index] = _joint_of(parts[index], body_poses, tracks, off_seams, k)
             done += 1
             progress(done, total)
+        kept = {i: fit.poses for i, fit in fits.items() if _kept(fit)}
         error = 0.0 if len(bodies) == 1 else _articulated_error(
-            parts, [body_poses if i == on else parts[i].poses if fits[i] is None else fits[i].poses
-                    for i in range(len(parts))], tracks, off_seams, k)
-        if best is None or error < best[0]:
-            best = (error, on, fits)
+            parts, [body_poses if i == on else kept.get(i, parts[i].poses) for i in range(len(parts))], tracks,
+            off_seams, k)
+        rank = (len(fits) - len(kept), error)  # a body the other parts are joined to, then the lowest error
+        if best is None or rank < best[0]:
+            best = (rank, on, fits)
     _, on, fits = best
     body, notes = parts[on], {}
     if body.held is not None:
@@ -345,7 +353,7 @@ def _fit_joints(parts: list[_Part], tracks: Tracks, track_labels: np.ndarray, ma
         if fit is None:
             notes[str(index)] = {"model": "free", "reason": f"it neither turns about an axis nor slides against part "
                                  f"{on}, or has too few tracks"}
-        elif fit.residual_px > fit.free_residual_px + _HINGE_TOLERANCE_PX:
+        elif not _kept(fit):
             notes[str(index)] = {"model": "free", "reason": f"a {kind} on part {on} fits its tracks worse "
                                  f"({fit.residual_px:.2f} px against {fit.free_residual_px:.2f} px)"}
         else:
