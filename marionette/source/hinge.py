@@ -14,9 +14,12 @@ angle is then fitted alone. Tracks that do not follow the fitted hinge (a
 few of another part's tracks carry its label near the seam) are dropped and
 the fit repeated.
 
-:func:`fit_hinge` starts from the free fit's poses and returns the hinge
-model with how well it explains the tracks; the extraction keeps it when it
-explains them about as well as the free poses do (the simpler model).
+:func:`fit_hinge` starts from the free fit's poses (its angles, and half of
+them), and from the hinge fitted on the first half of the key frames carried
+on at its last rate (a thin part the free fit loses once it turns edge-on);
+it returns the hinge that explains the tracks best, with how well; the
+extraction keeps it when it explains them about as well as the free poses do
+(the simpler model).
 """
 
 from __future__ import annotations
@@ -124,9 +127,12 @@ def fit_hinge(uv: np.ndarray, visible: np.ndarray, body_poses: np.ndarray, free_
     every = Observations(uv, visible, keep)
     free = float(np.median(np.linalg.norm(every.residuals(free_poses, k)[0], axis=1)))
     best = None
-    for scale in _START_SCALES:
-        fitted = _fit_key_frames(uv[key], visible[key], body_poses[key], free_poses[key], k, axis0, point0,
-                                 scale * angles0[key], min_track_frames, max_evaluations)
+    starts = [(axis0, point0, scale * angles0[key]) for scale in _START_SCALES]
+    continued = _continued(uv, visible, body_poses, free_poses, k, key, axis0, point0, angles0, min_track_frames,
+                           max_evaluations)
+    for axis_start, point_start, angles_start in starts + ([continued] if continued is not None else []):
+        fitted = _fit_key_frames(uv[key], visible[key], body_poses[key], free_poses[key], k, axis_start,
+                                 point_start, angles_start, min_track_frames, max_evaluations)
         if fitted is None:
             continue
         axis, point, key_angles, points, tracks, dropped = fitted
@@ -140,6 +146,25 @@ def fit_hinge(uv: np.ndarray, visible: np.ndarray, body_poses: np.ndarray, free_
         if best is None or hinged < best.residual_px:
             best = HingeFit(poses, axis, point, angles, hinged, free, dropped, visible[:, tracks].sum(axis=1))
     return best
+
+
+def _continued(uv, visible, body_poses, free_poses, k, key, axis0, point0, angles0, min_track_frames,
+               max_evaluations):
+    """One more start of the key frames' fit: the hinge fitted on the first half of them, its angles carried on
+    over the rest at their last rate; None if the first half fits none. A thin part the free fit loses once it
+    turns edge-on (its later tracks explained by depths and a wrong turn) starts every other fit in a basin its
+    later tracks cannot pull it out of (they are too far off, down-weighted by the robust loss)."""
+    half = len(key) // 2
+    if half < 3:
+        return None
+    first = key[:half]
+    fitted = _fit_key_frames(uv[first], visible[first], body_poses[first], free_poses[first], k, axis0, point0,
+                             angles0[first], min_track_frames, max_evaluations)
+    if fitted is None:
+        return None
+    axis, point, angles = fitted[:3]
+    rate = (angles[-1] - angles[-2]) / (first[-1] - first[-2])
+    return axis, point, np.r_[angles, angles[-1] + rate * (key[half:] - first[-1])]
 
 
 def _wrapped(angles: np.ndarray) -> np.ndarray:
