@@ -15,9 +15,9 @@ few of another part's tracks carry its label near the seam) are dropped and
 the fit repeated.
 
 :func:`fit_hinge` starts from the free fit's poses (its angles, and half of
-them), and from the hinge fitted on the first half of the key frames carried
-on at its last rate (a thin part the free fit loses once it turns edge-on);
-it returns the hinge that explains the tracks best, with how well; the
+them) and, when the best of those leaves many tracks out, from the hinge
+fitted on the first half of the key frames carried on at its last rate (a
+thin part the free fit loses once it turns edge-on); it returns the hinge that explains the tracks best, with how well; the
 extraction keeps it when it explains them about as well as the free poses do
 (the simpler model).
 """
@@ -39,6 +39,9 @@ __all__ = ["HingeFit", "fit_hinge", "hinge_poses"]
 #: angles that differ by a RANSAC inlier can start it in a wrong one; from half the angles, it reaches the true
 #: one (docs/benchmarks/suite.md).
 _START_SCALES = (1.0, 0.5)
+#: When the best of those leaves out more than this share of the tracks as not following it, the fit starts once
+#: more from the first half of the key frames carried on (:func:`_continued`).
+_CARRY_ON_DROPPED = 0.1
 
 
 @dataclass(frozen=True)
@@ -126,25 +129,28 @@ def fit_hinge(uv: np.ndarray, visible: np.ndarray, body_poses: np.ndarray, free_
     key = key_frames(len(body_poses))
     every = Observations(uv, visible, keep)
     free = float(np.median(np.linalg.norm(every.residuals(free_poses, k)[0], axis=1)))
-    best = None
+    best, best_dropped, carried = None, 1.0, False
     starts = [(axis0, point0, scale * angles0[key]) for scale in _START_SCALES]
-    continued = _continued(uv, visible, body_poses, free_poses, k, key, axis0, point0, angles0, min_track_frames,
-                           max_evaluations)
-    for axis_start, point_start, angles_start in starts + ([continued] if continued is not None else []):
-        fitted = _fit_key_frames(uv[key], visible[key], body_poses[key], free_poses[key], k, axis_start,
-                                 point_start, angles_start, min_track_frames, max_evaluations)
-        if fitted is None:
-            continue
-        axis, point, key_angles, points, tracks, dropped = fitted
-        angles = np.interp(np.arange(len(body_poses)), key, _wrapped(key_angles))
-        for t in np.setdiff1d(np.arange(len(body_poses)), key):
-            angles[t] = _frame_angle(uv[t, tracks], visible[t, tracks], points, body_poses[t], axis, point,
-                                     angles[t], k)
-        angles = _wrapped(angles)
-        poses = hinge_poses(body_poses, axis, point, angles)
-        hinged = float(np.median(np.linalg.norm(every.residuals(poses, k)[0], axis=1)))
-        if best is None or hinged < best.residual_px:
-            best = HingeFit(poses, axis, point, angles, hinged, free, dropped, visible[:, tracks].sum(axis=1))
+    while starts:
+        fitted = _fit_key_frames(uv[key], visible[key], body_poses[key], free_poses[key], k, *starts.pop(0),
+                                 min_track_frames, max_evaluations)
+        if fitted is not None:
+            axis, point, key_angles, points, tracks, dropped = fitted
+            angles = np.interp(np.arange(len(body_poses)), key, _wrapped(key_angles))
+            for t in np.setdiff1d(np.arange(len(body_poses)), key):
+                angles[t] = _frame_angle(uv[t, tracks], visible[t, tracks], points, body_poses[t], axis, point,
+                                         angles[t], k)
+            angles = _wrapped(angles)
+            poses = hinge_poses(body_poses, axis, point, angles)
+            hinged = float(np.median(np.linalg.norm(every.residuals(poses, k)[0], axis=1)))
+            if best is None or hinged < best.residual_px:
+                best = HingeFit(poses, axis, point, angles, hinged, free, dropped, visible[:, tracks].sum(axis=1))
+                best_dropped = dropped / (tracks.sum() + dropped)
+        if not starts and not carried and best_dropped > _CARRY_ON_DROPPED:  # the starts left many tracks out
+            carried = True
+            continued = _continued(uv, visible, body_poses, free_poses, k, key, axis0, point0, angles0,
+                                   min_track_frames, max_evaluations)
+            starts = [] if continued is None else [continued]
     return best
 
 
