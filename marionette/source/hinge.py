@@ -17,9 +17,9 @@ the fit repeated.
 :func:`fit_hinge` starts from the free fit's poses (its angles, and half of
 them) and, when the best of those leaves many tracks out, from the hinge
 fitted on the first half of the key frames carried on at its last rate (a
-thin part the free fit loses once it turns edge-on); it returns the hinge that explains the tracks best, with how well; the
-extraction keeps it when it explains them about as well as the free poses do
-(the simpler model).
+thin part the free fit loses once it turns edge-on); it returns the hinge
+that explains the tracks best, with how well; the extraction keeps it when
+it explains them about as well as the free poses do (the simpler model).
 """
 
 from __future__ import annotations
@@ -129,29 +129,33 @@ def fit_hinge(uv: np.ndarray, visible: np.ndarray, body_poses: np.ndarray, free_
     key = key_frames(len(body_poses))
     every = Observations(uv, visible, keep)
     free = float(np.median(np.linalg.norm(every.residuals(free_poses, k)[0], axis=1)))
-    best, best_dropped, carried = None, 1.0, False
-    starts = [(axis0, point0, scale * angles0[key]) for scale in _START_SCALES]
-    while starts:
-        fitted = _fit_key_frames(uv[key], visible[key], body_poses[key], free_poses[key], k, *starts.pop(0),
+
+    def completed(start: tuple) -> tuple[HingeFit, float] | None:
+        """The hinge fitted from ``start`` (axis, point, key frames' angles) over every frame, and the share of
+        the tracks it left out; None if too few follow it."""
+        fitted = _fit_key_frames(uv[key], visible[key], body_poses[key], free_poses[key], k, *start,
                                  min_track_frames, max_evaluations)
-        if fitted is not None:
-            axis, point, key_angles, points, tracks, dropped = fitted
-            angles = np.interp(np.arange(len(body_poses)), key, _wrapped(key_angles))
-            for t in np.setdiff1d(np.arange(len(body_poses)), key):
-                angles[t] = _frame_angle(uv[t, tracks], visible[t, tracks], points, body_poses[t], axis, point,
-                                         angles[t], k)
-            angles = _wrapped(angles)
-            poses = hinge_poses(body_poses, axis, point, angles)
-            hinged = float(np.median(np.linalg.norm(every.residuals(poses, k)[0], axis=1)))
-            if best is None or hinged < best.residual_px:
-                best = HingeFit(poses, axis, point, angles, hinged, free, dropped, visible[:, tracks].sum(axis=1))
-                best_dropped = dropped / (tracks.sum() + dropped)
-        if not starts and not carried and best_dropped > _CARRY_ON_DROPPED:  # the starts left many tracks out
-            carried = True
-            continued = _continued(uv, visible, body_poses, free_poses, k, key, axis0, point0, angles0,
-                                   min_track_frames, max_evaluations)
-            starts = [] if continued is None else [continued]
-    return best
+        if fitted is None:
+            return None
+        axis, point, key_angles, points, tracks, dropped = fitted
+        angles = np.interp(np.arange(len(body_poses)), key, _wrapped(key_angles))
+        for t in np.setdiff1d(np.arange(len(body_poses)), key):
+            angles[t] = _frame_angle(uv[t, tracks], visible[t, tracks], points, body_poses[t], axis, point,
+                                     angles[t], k)
+        angles = _wrapped(angles)
+        poses = hinge_poses(body_poses, axis, point, angles)
+        hinged = float(np.median(np.linalg.norm(every.residuals(poses, k)[0], axis=1)))
+        return (HingeFit(poses, axis, point, angles, hinged, free, dropped, visible[:, tracks].sum(axis=1)),
+                dropped / (tracks.sum() + dropped))
+
+    fits = [fit for fit in (completed((axis0, point0, scale * angles0[key])) for scale in _START_SCALES) if fit]
+    if not fits or min(fits, key=lambda fit: fit[0].residual_px)[1] > _CARRY_ON_DROPPED:  # many tracks left out
+        continued = _continued(uv, visible, body_poses, free_poses, k, key, axis0, point0, angles0,
+                               min_track_frames, max_evaluations)
+        carried = None if continued is None else completed(continued)
+        if carried is not None:
+            fits.append(carried)
+    return min(fits, key=lambda fit: fit[0].residual_px)[0] if fits else None
 
 
 def _continued(uv, visible, body_poses, free_poses, k, key, axis0, point0, angles0, min_track_frames,

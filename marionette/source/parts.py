@@ -521,14 +521,17 @@ def _best_set(costs: np.ndarray, base: np.ndarray, size: int) -> list[int]:
     def total(rows: list[int]) -> float:
         return float(np.minimum.reduce([base] + [costs[i] for i in rows]).sum())
 
-    improved = True
+    best, improved = total(chosen), True
     while improved:
         improved = False
         for slot in range(len(chosen)):
             for row in range(len(costs)):
+                if row in chosen:
+                    continue
                 trial = chosen[:slot] + [row] + chosen[slot + 1:]
-                if row not in chosen and total(trial) < total(chosen) - 1e-9:
-                    chosen, improved = trial, True
+                cost = total(trial)
+                if cost < best - 1e-9:
+                    chosen, best, improved = trial, cost, True
     return chosen
 
 
