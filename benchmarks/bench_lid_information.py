@@ -18,27 +18,23 @@ Writes ``docs/benchmarks/lid_information.md``.
 
 from __future__ import annotations
 
-import dataclasses
 import platform
 import warnings
 from pathlib import Path
-from unittest import mock
 
-import cv2
 import numpy as np
 
 from marionette.geometry import rotation_angle_deg
 from marionette.source import hinge
 from marionette.source.joint_tracks import Observations
-from marionette.source.tracks import Tracks, _align_affine, _aligned_noise, track
+from marionette.source.seed_align import realign_to_seeds
+from marionette.source.tracks import track
 from marionette.synthetic import make_scene
 
 PAGE = Path(__file__).resolve().parents[1] / "docs" / "benchmarks" / "lid_information.md"
 SEEDS = (0, 1, 2)
 FRAMES, SIZE = 48, (320, 240)
 FRAMES_SHOWN = range(2, FRAMES, 2)
-#: The re-alignment's window side (the tracker's) and the residual above which an observation is dropped.
-WINDOW, LIMIT = 21, 0.6
 
 
 #: What the tables say (2026-12-06); the attempts named at its end were session scripts, not kept.
@@ -67,39 +63,10 @@ against 0.46-2.92 px under wrong hinges, but as a term with the tracker's tracks
 """
 
 
-def realigned(tracks: Tracks, frames: np.ndarray, masks: np.ndarray) -> Tracks:
-    """``tracks`` with each position re-aligned to the track's seed window, each frame starting from the last
-    aligned position moved by the tracker's step; observations that do not match (residual above LIMIT) are
-    dropped."""
-    greys = [cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in frames]
-    images = [cv2.GaussianBlur(g.astype(np.float32), (0, 0), 0.7) for g in greys]
-    noise = _aligned_noise(greys[0])
-    uv = tracks.uv.astype(np.float64)
-    count = tracks.num_tracks
-    seeds = uv[tracks.start, np.arange(count)]
-    out = np.full_like(uv, np.nan)
-    out[tracks.start, np.arange(count)] = seeds
-    position, warp = seeds.copy(), np.tile(np.eye(2), (count, 1, 1))
-    for t in range(1, tracks.num_frames):
-        alive = np.flatnonzero(tracks.visible[t] & (tracks.start < t))
-        for s in np.unique(tracks.start[alive]):
-            ids = alive[tracks.start[alive] == s]
-            before = np.where(np.isfinite(uv[t - 1, ids]), uv[t - 1, ids], uv[t, ids])
-            p, a, residual, _ = _align_affine(images[s], masks[s].astype(np.float32), images[t], seeds[ids],
-                                              position[ids] + uv[t, ids] - before, warp[ids], WINDOW,
-                                              photometric=True, noise=noise)
-            good = np.isfinite(residual) & (residual < LIMIT) & (np.linalg.norm(p - uv[t, ids], axis=1) < 3.0)
-            out[t, ids[good]] = p[good]
-            position[ids[good]], warp[ids[good]] = p[good], a[good]
-            position[ids[~good]] = uv[t, ids[~good]]
-    visible = np.isfinite(out).all(axis=2)
-    return dataclasses.replace(tracks, uv=out.astype(np.float32), visible=visible)
-
-
 def hinge_from_truth(uv: np.ndarray, visible: np.ndarray, scene, lid: np.ndarray, scale: float) -> hinge.HingeFit:
     """The hinge fitted to the ``lid`` tracks from the true poses' angles times ``scale``."""
-    with mock.patch.object(hinge, "_START_SCALES", (scale,)):
-        return hinge.fit_hinge(uv[:, lid], visible[:, lid], scene.poses[0], scene.poses[1], scene.camera.K)
+    return hinge.fit_hinge(uv[:, lid], visible[:, lid], scene.poses[0], scene.poses[1], scene.camera.K,
+                           start_scales=(scale,))
 
 
 def lid_error(fit: hinge.HingeFit, scene) -> float:
@@ -120,7 +87,7 @@ def main() -> None:
     for seed in SEEDS:
         scene = make_scene("hinge", seed=seed, num_frames=FRAMES, size=SIZE)
         tracker = track(scene.frames, scene.masks, strict=False)
-        again = realigned(tracker, scene.frames, scene.masks)
+        again = realign_to_seeds(tracker, scene.frames, scene.masks)
         seeds = tracker.uv[tracker.start, np.arange(tracker.num_tracks)].astype(np.float64)
         truth, valid = scene.track_truth(tracker.start, seeds)
         col, row = np.rint(seeds).astype(int).T

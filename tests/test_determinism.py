@@ -168,12 +168,14 @@ def rotation_gap_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def test_parts_auto_does_not_follow_the_blas_kernel_or_thread_count(motion, frames, size, parts, tmp_path):
     """Issue 14: the same ``extract --parts auto`` under 1 and 2 threads and other BLAS kernels.
 
-    The part count (and how it was chosen) must agree everywhere, and the poses within 0.15°: a one-part
-    motion's, and the hinge's still body and lid; with ``--parts 1``, the choice of strict tracks too. The
-    lid's free poses do differ (PnP RANSAC keeps 5 or 6 inliers on its few tracks, by the last bits), and the
-    hinge fit of each used to settle in a minimum of its own, 46° apart on this clip; fitted from two starts,
-    both reach the best one, near the truth. The tracks' poses agree within 0.05°; the joint fit, thousands
-    of descent steps on them, carries that to 0.08° (the outofplane clip), below its own accuracy.
+    The part count (and how it was chosen) must agree everywhere; with ``--parts 1``, the choice of strict tracks
+    too. The hinge's still body and lid agree within 0.15°: the lid's free poses do differ (PnP RANSAC keeps 5 or
+    6 inliers on its few tracks, by the last bits), and the hinge fit of each used to settle in a minimum of its
+    own, 46° apart on this clip; fitted from two starts, both reach the best one, near the truth. A one-part
+    motion's tracks' poses agree within 0.05°; the joint fit, thousands of descent steps on them, carries the
+    kernels' last bits to 0.08-0.18° (the outofplane clip, on two CPUs: the machine's kernel against
+    Sandybridge's, which has no fused multiply-add), far below its own error there (4.5° at the end): held to
+    0.25°.
     """
     scene = make_scene(motion, seed=0, num_frames=frames, size=size)
     write_video(tmp_path / "frames", scene.frames, scene.fps)
@@ -199,7 +201,7 @@ def test_parts_auto_does_not_follow_the_blas_kernel_or_thread_count(motion, fram
             other_order = np.argsort(rotation_gap_deg(np.eye(4), other[:, -1]))
             assert rotation_gap_deg(poses[order], other[other_order]).max() < 0.15
         else:
-            assert rotation_gap_deg(poses, other).max() < 0.15
+            assert rotation_gap_deg(poses, other).max() < 0.25
     if motion == "hinge":  # and the lid they agree on is the true one (its free poses alone: 17° off)
         lid = int(np.argmax(rotation_gap_deg(np.eye(4), poses[:, -1])))
         assert np.median(rotation_gap_deg(poses[lid, 1:], scene.poses[1, 1:])) < 5.0

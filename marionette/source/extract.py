@@ -52,13 +52,14 @@ from .camera_motion import estimate_camera_motion, to_world
 from .depth import DepthMaps, poses_from_depth
 from .focal import FOCAL_SCALES, estimate_focal
 from .foreground import auto_masks
-from .hinge import HingeFit, fit_hinge
+from .hinge import HingeFit, fit_hinge, hinge_poses
 from .joint_tracks import Observations
 from .part_pixels import find_still_part, label_pixels, part_depth
-from .pixel_joint import fit_pixel_joint
 from .parts import OFF_OBJECT, OUTLIER, STATIC, PartSegmentation, TooFewTracks, segment_parts
+from .pixel_joint import fit_pixel_joint, place_unseen_angles
 from .recover import FrameRecovery
 from .rigid import RigidOptions, ShapePrior, carved_centroid, fit_rigid
+from .seed_align import realign_to_seeds
 from .slider import SliderFit, fit_slider
 from .smoothing import smooth_poses
 from .tracks import Tracks, _check_video, track
@@ -171,6 +172,7 @@ class _Part:
     surface: np.ndarray | None = None  # (H, W) frame-0 depth its joint was fitted on, when from its pixels
     held: tuple | None = None  # (RigidFit, note): its points held on the outline's box, when that fits as well
     fit_note: str | None = None  # how its poses were fitted, when not the usual way
+    hinge: HingeFit | None = None  # the hinge its tracks fit, when kept
 
     def take_held(self, masks: np.ndarray) -> None:
         """Its poses, failed and recovered frames, points and centre become those of :attr:`held`."""
@@ -261,6 +263,21 @@ def _joint_of(part: _Part, body_poses: np.ndarray, tracks: Tracks, track_labels:
                default=None)
 
 
+def _realigned_hinge(part: _Part, fit: HingeFit, body_poses: np.ndarray, tracks: Tracks, track_labels: np.ndarray,
+                     frames, masks, k: np.ndarray) -> HingeFit:
+    """``fit`` fitted again to ``part``'s tracks re-aligned to their seed windows (:func:`realign_to_seeds`), those
+    that no longer match kept as tracked: the tracker's drift makes a lid turning away come out a few per cent
+    short at every frame, and the tracks across its edge-on turn tell a turn past it from one back. The
+    residuals stay ``fit``'s (the model was chosen on the tracks as tracked)."""
+    members = track_labels == part.group
+    aligned = realign_to_seeds(tracks, frames, masks, subset=members, keep_unmatched=True)
+    again = fit_hinge(aligned.uv[:, members], aligned.visible[:, members], body_poses, fit.poses, k,
+                      start_scales=(1.0,))
+    if again is None:
+        return fit
+    return dataclasses.replace(again, residual_px=fit.residual_px, free_residual_px=fit.free_residual_px)
+
+
 def _kept(fit: HingeFit | SliderFit | None) -> bool:
     """Whether a joint explains its part's tracks about as well as its free poses (within
     :data:`_HINGE_TOLERANCE_PX`): the simpler model, kept."""
@@ -314,8 +331,8 @@ def _based_on_the_stiller(parts: list[_Part], on: int, notes: dict[str, dict]) -
                       "fitted": f"as part {other} on part {on}, told from part {other}, which turns less"}}
 
 
-def _fit_joints(parts: list[_Part], tracks: Tracks, track_labels: np.ndarray, masks: np.ndarray, k: np.ndarray,
-                progress: ProgressCallback) -> dict[str, dict]:
+def _fit_joints(parts: list[_Part], tracks: Tracks, track_labels: np.ndarray, frames, masks: np.ndarray,
+                k: np.ndarray, progress: ProgressCallback) -> dict[str, dict]:
     """Refit each part as a hinge on the body (it turns) or a slider (it travels without turning) where that
     fits its tracks as well as its free poses.
 
@@ -328,6 +345,7 @@ def _fit_joints(parts: list[_Part], tracks: Tracks, track_labels: np.ndarray, ma
     static = [i for i, p in enumerate(parts) if p.group == STATIC]
     bodies = static[:1] or list(range(len(parts)))
     off_seams = _off_the_seams(tracks, track_labels, parts)
+
     total, done, best = len(bodies) * (len(parts) - 1), 0, None
     for on in bodies:
         body_poses = parts[on].poses if parts[on].held is None else parts[on].held[0].poses
@@ -357,7 +375,9 @@ def _fit_joints(parts: list[_Part], tracks: Tracks, track_labels: np.ndarray, ma
             notes[str(index)] = {"model": "free", "reason": f"a {kind} on part {on} fits its tracks worse "
                                  f"({fit.residual_px:.2f} px against {fit.free_residual_px:.2f} px)"}
         else:
-            part.poses = fit.poses
+            if kind == "hinge":  # chosen on the tracks as tracked, its angles from the tracks re-aligned
+                fit = _realigned_hinge(part, fit, body.poses, tracks, off_seams, frames, masks, k)
+            part.poses, part.hinge = fit.poses, fit if kind == "hinge" else None
             for t in sorted(part.failed):  # a frame the free fit lost, placed by its tracks on the joint
                 if fit.seen[t] >= _HINGE_MIN_TRACKS:
                     del part.failed[t]
@@ -414,7 +434,7 @@ def _fit_pixel_joint(parts: list[_Part], index: int, tracks: Tracks, track_label
     if fit is None or fit.cost >= fit.start_cost:
         notes[str(index)]["pixels"] = "no hinge or slider explains its pixels better than its poses"
         return
-    part.poses, part.surface = fit.poses, depth
+    part.poses, part.surface, part.hinge = fit.poses, depth, None
     part.failed.clear()
     joint = ({"point": np.round(fit.point, 4).tolist(),
               "range_deg": np.round(np.degrees([fit.values.min(), fit.values.max()]), 2).tolist()}
@@ -422,6 +442,29 @@ def _fit_pixel_joint(parts: list[_Part], index: int, tracks: Tracks, track_label
     notes[str(index)] = {"model": fit.kind, "on_part": on, "axis": np.round(fit.axis, 4).tolist(), **joint,
                          "fitted_to": "pixels and masks", "surface": surface,
                          "cost_ratio": round(fit.cost / fit.start_cost, 3)}
+
+
+def _place_unseen(parts: list[_Part], index: int, tracks: Tracks, track_labels: np.ndarray, frames, masks,
+                  whole: ShapePrior, k: np.ndarray, notes: dict[str, dict]) -> None:
+    """Part ``index``'s hinge angles in the frames fewer than :data:`_HINGE_MIN_TRACKS` of its tracks see, found
+    from its pixels and the masks (:func:`place_unseen_angles`) on the surface its tracks place; those frames
+    are listed as recovered, and ``notes`` (the metadata's joints) give the new range."""
+    part, note = parts[index], notes[str(index)]
+    unseen = part.hinge.seen < _HINGE_MIN_TRACKS
+    unseen[0] = False
+    depth = part_depth(_surface_points(part, tracks, track_labels, k), k, part.pixels, whole.front)
+    body = parts[note["on_part"]].poses
+    angles = place_unseen_angles(frames, masks, k, body, np.asarray(masks[0], bool), part.pixels, depth,
+                                 part.hinge.axis, part.hinge.point, part.hinge.angles, unseen)
+    if angles is None:
+        return
+    part.poses = hinge_poses(body, part.hinge.axis, part.hinge.point, angles)
+    for t in np.flatnonzero(unseen):
+        part.failed.pop(int(t), None)
+        part.recovered[int(t)] = "placed about its hinge by its pixels and the mask (its tracks do not see it)"
+    part.recovered = dict(sorted(part.recovered.items()))
+    note["range_deg"] = np.round(np.degrees([angles.min(), angles.max()]), 2).tolist()
+    note["placed_by_pixels"] = int(unseen.sum())
 
 
 def _outline_box(mask0: np.ndarray, k: np.ndarray, whole: ShapePrior) -> Cuboid | None:
@@ -805,7 +848,7 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
     parts.sort(key=lambda p: -p.pixels.sum())
     if options.joints and len(parts) > 1:
         with stages("joints", "fitting joints", len(parts) - 1) as progress:
-            metadata["joints"] = _fit_joints(parts, chains, chain_labels, masks, k, progress)
+            metadata["joints"] = _fit_joints(parts, chains, chain_labels, frames, masks, k, progress)
         free = [i for i, note in metadata["joints"].items()  # the pixels found it, or its tracks are few
                 if beside_still is not None or (chain_labels == parts[int(i)].group).sum() < _PIXEL_JOINT_TRACKS]
         if free:  # too few tracks to trust a joint fitted to them: look for one in the pixels
@@ -814,6 +857,14 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
                     _fit_pixel_joint(parts, int(index), chains, chain_labels, frames, masks, whole, k,
                                      outline_box(), metadata["joints"])
                     progress(done, len(free))
+        unseen = [i for i, part in enumerate(parts)  # a hinge told the other way round keeps its tracks' angles
+                  if part.hinge is not None and metadata["joints"].get(str(i), {}).get("model") == "hinge"
+                  and (part.hinge.seen[1:] < _HINGE_MIN_TRACKS).any()]
+        if unseen:
+            with stages("unseen", "placing hinges where their tracks do not see them", len(unseen)) as progress:
+                for done, index in enumerate(unseen, start=1):
+                    _place_unseen(parts, index, chains, chain_labels, frames, masks, whole, k, metadata["joints"])
+                    progress(done, len(unseen))
     if len(parts) > 1:
         with stages("labels", "labelling the parts' pixels", 1) as progress:
             _label_part_pixels(parts, chains, chain_labels, frames, masks, whole, k)

@@ -99,7 +99,8 @@ def _initial_hinge(relative: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nda
 
 
 def fit_hinge(uv: np.ndarray, visible: np.ndarray, body_poses: np.ndarray, free_poses: np.ndarray,
-              k: np.ndarray, *, min_track_frames: int = 3, max_evaluations: int = 50) -> HingeFit | None:
+              k: np.ndarray, *, min_track_frames: int = 3, max_evaluations: int = 50,
+              start_scales: tuple[float, ...] = _START_SCALES) -> HingeFit | None:
     """Fit a part's motion as a hinge on its body, starting from its free poses.
 
     Parameters
@@ -113,6 +114,8 @@ def fit_hinge(uv: np.ndarray, visible: np.ndarray, body_poses: np.ndarray, free_
         Tracks seen in fewer frames say nothing of the motion and are left out.
     max_evaluations : int
         Cap on the least-squares evaluations per fit of the axis.
+    start_scales : the free poses' angles times each of these start a fit (a hinge refitted from one already
+        found: ``(1.0,)``).
 
     Returns
     -------
@@ -148,7 +151,7 @@ def fit_hinge(uv: np.ndarray, visible: np.ndarray, body_poses: np.ndarray, free_
         return (HingeFit(poses, axis, point, angles, hinged, free, dropped, visible[:, tracks].sum(axis=1)),
                 dropped / (tracks.sum() + dropped))
 
-    fits = [fit for fit in (completed((axis0, point0, scale * angles0[key])) for scale in _START_SCALES) if fit]
+    fits = [fit for fit in (completed((axis0, point0, scale * angles0[key])) for scale in start_scales) if fit]
     if not fits or min(fits, key=lambda fit: fit[0].residual_px)[1] > _CARRY_ON_DROPPED:  # many tracks left out
         continued = _continued(uv, visible, body_poses, free_poses, k, key, axis0, point0, angles0,
                                min_track_frames, max_evaluations)

@@ -28,7 +28,7 @@ import numpy as np
 from ..geometry import axis_angle_to_matrix
 from .part_pixels import _CAP, _COLOUR_SIGMA, _EDGE_ON, _UNSEEN, _log_colour, _normals, _sample
 
-__all__ = ["PixelJoint", "fit_pixel_joint"]
+__all__ = ["PixelJoint", "fit_pixel_joint", "place_unseen_angles"]
 
 #: Changing the angle (travel) by its largest step between frames tested costs this share of a frame's cost.
 _SMOOTHNESS = 0.15
@@ -41,6 +41,9 @@ _MIN_STRETCH = 0.12
 _ANGLES, _ANGLE_MOVE, _ANGLE_FINE = np.arange(-120.0, 120.1, 3.0), 30.0, 0.5
 #: Travels searched, in shares of the part's depth, alike.
 _TRAVELS, _TRAVEL_MOVE, _TRAVEL_FINE = np.arange(-0.4, 0.401, 0.0125), 0.1, 0.0025
+#: A hinge's angle in frames its tracks do not see is searched this far (degrees) from the last seen one, moving at
+#: most _UNSEEN_MOVE between frames.
+_UNSEEN_ANGLES, _UNSEEN_MOVE = np.arange(-45.0, 45.1, 1.0), 8.0
 #: The first look: every _COARSE-th value of the grid, on these of the frames tested; _FINALISTS go on.
 _COARSE, _PROXY_FRAMES, _FINALISTS = 3, slice(2, None, 3), 3
 
@@ -269,3 +272,41 @@ def fit_pixel_joint(frames, masks, k: np.ndarray, body_poses: np.ndarray, body_p
     poses = np.stack([body_poses[t] @ (_turn(axis, point, every[t]) if kind == "hinge" else _shift(axis, every[t]))
                       for t in range(num_frames)])
     return PixelJoint(kind, axis, point, every, poses, float(total), float(start_cost))
+
+
+def place_unseen_angles(frames, masks, k: np.ndarray, body_poses: np.ndarray, body_pixels: np.ndarray,
+                        part_pixels: np.ndarray, depth: np.ndarray, axis: np.ndarray, point: np.ndarray,
+                        angles: np.ndarray, unseen: np.ndarray, *, seed: int = 0) -> np.ndarray | None:
+    """A hinge's angles with those of the frames its tracks do not see found from the part's pixels and the masks.
+
+    A screen or lid turned away from the camera loses its tracks, and its angle there is only what the start of
+    the fit held; its outline and whatever of its face still shows place it. Each run of ``unseen`` frames
+    carries on from the angle before it, searched as in :func:`fit_pixel_joint` (the cheapest smooth path,
+    within :data:`_UNSEEN_ANGLES` of that angle), the axis kept.
+
+    Parameters as :func:`fit_pixel_joint`; axis, point : (3,) the hinge's line (body frame 0); angles : (T,)
+    radians; unseen : (T,) bool, False at frame 0.
+
+    Returns
+    -------
+    (T,) angles (radians), or None when the part has too few pixels.
+    """
+    rng = np.random.default_rng(seed)
+    body_points, _ = _sample_points(body_pixels, depth, k, _POINTS, rng)
+    points, at = _sample_points(part_pixels, depth, k, _POINTS, rng)
+    if len(points) < 16:
+        return None
+    normals = _normals(np.where(part_pixels, depth, np.nan), k)[:, at[:, 1], at[:, 0]].T  # (N, 3)
+    costs = _Frames(frames, masks, k, body_poses, body_points, points, normals,
+                    _log_colour(frames[0])[at[:, 1], at[:, 0]], part_pixels.sum() / len(points))
+    placed = np.array(angles, np.float64)
+    frames_unseen = np.flatnonzero(unseen)
+    runs = np.split(frames_unseen, np.flatnonzero(np.diff(frames_unseen) > 1) + 1) if len(frames_unseen) else []
+    for run in runs:
+        base = placed[run[0] - 1]
+
+        def turned(t, angle, base=base):
+            return body_poses[t] @ _turn(axis, point, base + np.radians(angle))
+        values, _ = _search(costs, run, turned, _UNSEEN_ANGLES, _UNSEEN_MOVE, _ANGLE_FINE)
+        placed[run] = base + np.radians(values)
+    return placed
