@@ -345,7 +345,6 @@ def _fit_joints(parts: list[_Part], tracks: Tracks, track_labels: np.ndarray, fr
     static = [i for i, p in enumerate(parts) if p.group == STATIC]
     bodies = static[:1] or list(range(len(parts)))
     off_seams = _off_the_seams(tracks, track_labels, parts)
-
     total, done, best = len(bodies) * (len(parts) - 1), 0, None
     for on in bodies:
         body_poses = parts[on].poses if parts[on].held is None else parts[on].held[0].poses

@@ -117,6 +117,19 @@ class _Frames:
         return float(part_cost + _CAP * np.count_nonzero(mask & ~covered))
 
 
+def _frame_costs(frames, masks, k, body_poses, body_pixels, part_pixels, depth, seed: int) -> _Frames | None:
+    """The cost of :func:`fit_pixel_joint` on samples of the body's and the part's frame-0 pixels placed at
+    ``depth``; None when the part has fewer than 16 pixels with a depth."""
+    rng = np.random.default_rng(seed)
+    body_points, _ = _sample_points(body_pixels, depth, k, _POINTS, rng)
+    points, at = _sample_points(part_pixels, depth, k, _POINTS, rng)
+    if len(points) < 16:
+        return None
+    normals = _normals(np.where(part_pixels, depth, np.nan), k)[:, at[:, 1], at[:, 0]].T  # (N, 3)
+    return _Frames(frames, masks, k, body_poses, body_points, points, normals,
+                   _log_colour(frames[0])[at[:, 1], at[:, 0]], part_pixels.sum() / len(points))
+
+
 def _splat(x: np.ndarray, y: np.ndarray, shape: tuple[int, int], weight: float) -> np.ndarray:
     """(H, W) uint8 footprint of points at ``x``, ``y`` that each stand for ``weight`` pixels."""
     out = np.zeros(shape, np.uint8)
@@ -244,16 +257,10 @@ def fit_pixel_joint(frames, masks, k: np.ndarray, body_poses: np.ndarray, body_p
     The best joint, or None when the part has too few pixels.
     """
     num_frames = len(body_poses)
-    rng = np.random.default_rng(seed)
-    body_points, _ = _sample_points(body_pixels, depth, k, _POINTS, rng)
     tested = np.unique(np.linspace(1, num_frames - 1, min(max_frames, num_frames - 1)).round().astype(int))
-    colours = _log_colour(frames[0])
-    points, at = _sample_points(part_pixels, depth, k, _POINTS, rng)
-    if len(points) < 16:
+    costs = _frame_costs(frames, masks, k, body_poses, body_pixels, part_pixels, depth, seed)
+    if costs is None:
         return None
-    normals = _normals(np.where(part_pixels, depth, np.nan), k)[:, at[:, 1], at[:, 0]].T  # (N, 3)
-    costs = _Frames(frames, masks, k, body_poses, body_points, points, normals, colours[at[:, 1], at[:, 0]],
-                    part_pixels.sum() / len(points))
     start_cost = sum(costs.cost(t, start_poses[t]) for t in tested)
     trials = []
     for candidate in _candidates(costs, part_pixels, depth, k, body_poses):
@@ -291,14 +298,9 @@ def place_unseen_angles(frames, masks, k: np.ndarray, body_poses: np.ndarray, bo
     -------
     (T,) angles (radians), or None when the part has too few pixels.
     """
-    rng = np.random.default_rng(seed)
-    body_points, _ = _sample_points(body_pixels, depth, k, _POINTS, rng)
-    points, at = _sample_points(part_pixels, depth, k, _POINTS, rng)
-    if len(points) < 16:
+    costs = _frame_costs(frames, masks, k, body_poses, body_pixels, part_pixels, depth, seed)
+    if costs is None:
         return None
-    normals = _normals(np.where(part_pixels, depth, np.nan), k)[:, at[:, 1], at[:, 0]].T  # (N, 3)
-    costs = _Frames(frames, masks, k, body_poses, body_points, points, normals,
-                    _log_colour(frames[0])[at[:, 1], at[:, 0]], part_pixels.sum() / len(points))
     placed = np.array(angles, np.float64)
     frames_unseen = np.flatnonzero(unseen)
     runs = np.split(frames_unseen, np.flatnonzero(np.diff(frames_unseen) > 1) + 1) if len(frames_unseen) else []
