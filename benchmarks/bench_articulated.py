@@ -199,7 +199,7 @@ def report(rows: list[dict], scenes: int, timed: list[tuple[str, float]]) -> str
               f"{_median(r['body_error'] for r in rows if r['body_moves'])}° where the body turns). Hinges' final "
               f"angle error median {_median(r['range_error'] for r in rows if r['joint'] == 'hinge' == right_of(r))}° "
               "(target 2°).", "",
-              f"Time at issue 52's size (50 frames 640x480, `--parts 2`, one clip of each type, seed 200): "
+              "Time at issue 52's size (50 frames 640x480, `--parts 2`, one clip of each type, seed 200): "
               + ", ".join(f"{kind} {seconds:.1f} s" for kind, seconds in timed)
               + f"; median {statistics.median(seconds for _, seconds in timed):.1f} s (target 30 s).", "",
               "Per scene:", "",
@@ -232,7 +232,8 @@ READING = (
     "again to its tracks re-aligned to their seed windows (`source/seed_align.py`; lid 100 → 68°, the lids' "
     "median final-angle error 6.2° → 3.7°), and frames no track of it sees are placed from its pixels and the "
     "mask (a screen turned away: screen 102's last nine frames, which the tracks' fit had swing back to 4-35°, "
-    "now follow the turn to 71° of 67°). What is "
+    "now follow the turn to 71° of 67°), as are the frames after such a run that only tracks seeded after it "
+    "see (a door's other face, come into view: they fix their own depths; door 107 2.7° → 1.3°). What is "
     "still missed: a plain drawer keeps its colour as it slides, so the pixels give it only its border, and a "
     "hinge along that explains it better than a slider; a drawer whose cabinet's tracks below it are covered "
     "as it slides out (the tracks slip onto it and the segmentation gives it half the cabinet's front); a "

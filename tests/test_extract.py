@@ -287,6 +287,19 @@ def test_hinge_lid_rotation(hinge):
     assert np.median(rotation_errors(prior.poses[lid], scene.poses[1])[1:]) < 1.3
 
 
+def test_a_hinge_is_unseen_from_where_its_tracks_lose_it_until_they_come_back():
+    """A door turns edge-on at frame 4: frames 4-5 see fewer than 3 of its tracks. Tracks seeded on its other face
+    from frame 6 do not make those frames seen (they fix their own depths); the first tracks seen again do."""
+    visible = np.zeros((10, 8), bool)
+    visible[:4, :4] = True  # its front's tracks, lost at frame 4
+    visible[6:, 4:] = True  # its back's, seeded at frame 6
+    unseen = visible[:, :4].sum(axis=1) + visible[:, 4:].sum(axis=1) < 3
+    assert np.flatnonzero(extract_module._unanchored(visible, unseen)).tolist() == [4, 5, 6, 7, 8, 9]
+    visible[8:, :3] = True  # the front turns back into view
+    assert np.flatnonzero(extract_module._unanchored(visible, unseen)).tolist() == [4, 5, 6, 7]
+    assert not extract_module._unanchored(visible[:4], unseen[:4]).any()
+
+
 def test_parts_asked_for_count_the_static_one(hinge):
     """The hinge's body stays still and its lid opens: two parts asked for are the lid and the static body, as
     'auto' finds them."""

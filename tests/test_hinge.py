@@ -95,6 +95,8 @@ def test_tracks_of_another_part_are_dropped(hinge):
     uv, visible = np.concatenate([uv, stray], axis=1), np.concatenate([visible, np.ones((T, 10), bool)], axis=1)
     fit = fit_hinge(uv, visible, body, hinge_poses(body, axis, point, 0.8 * angles), K)
     assert fit.dropped == 10
+    assert fit.followers.tolist() == [True] * (uv.shape[1] - 10) + [False] * 10
+    assert np.array_equal(fit.seen, visible[:, fit.followers].sum(axis=1))
     true = hinge_poses(body, axis, point, angles)
     assert rotation_angle_deg(fit.poses[:, :3, :3] @ np.swapaxes(true[:, :3, :3], -1, -2)).max() < 0.05
 

@@ -173,6 +173,7 @@ class _Part:
     held: tuple | None = None  # (RigidFit, note): its points held on the outline's box, when that fits as well
     fit_note: str | None = None  # how its poses were fitted, when not the usual way
     hinge: HingeFit | None = None  # the hinge its tracks fit, when kept
+    hinge_tracks: np.ndarray | None = None  # (M,) bool, the tracks that hinge follows
 
     def take_held(self, masks: np.ndarray) -> None:
         """Its poses, failed and recovered frames, points and centre become those of :attr:`held`."""
@@ -377,6 +378,9 @@ def _fit_joints(parts: list[_Part], tracks: Tracks, track_labels: np.ndarray, fr
             if kind == "hinge":  # chosen on the tracks as tracked, its angles from the tracks re-aligned
                 fit = _realigned_hinge(part, fit, body.poses, tracks, off_seams, frames, masks, k)
             part.poses, part.hinge = fit.poses, fit if kind == "hinge" else None
+            if kind == "hinge":
+                part.hinge_tracks = np.zeros(tracks.num_tracks, bool)
+                part.hinge_tracks[np.flatnonzero(off_seams == part.group)[fit.followers]] = True
             for t in sorted(part.failed):  # a frame the free fit lost, placed by its tracks on the joint
                 if fit.seen[t] >= _HINGE_MIN_TRACKS:
                     del part.failed[t]
@@ -445,12 +449,11 @@ def _fit_pixel_joint(parts: list[_Part], index: int, tracks: Tracks, track_label
 
 def _place_unseen(parts: list[_Part], index: int, tracks: Tracks, track_labels: np.ndarray, frames, masks,
                   whole: ShapePrior, k: np.ndarray, notes: dict[str, dict]) -> None:
-    """Part ``index``'s hinge angles in the frames fewer than :data:`_HINGE_MIN_TRACKS` of its tracks see, found
+    """Part ``index``'s hinge angles in the frames its tracks do not see (:func:`_unanchored`), found
     from its pixels and the masks (:func:`place_unseen_angles`) on the surface its tracks place; those frames
     are listed as recovered, and ``notes`` (the metadata's joints) give the new range."""
     part, note = parts[index], notes[str(index)]
-    unseen = part.hinge.seen < _HINGE_MIN_TRACKS
-    unseen[0] = False
+    unseen = _unanchored(tracks.visible[:, part.hinge_tracks], part.hinge.seen < _HINGE_MIN_TRACKS)
     depth = part_depth(_surface_points(part, tracks, track_labels, k), k, part.pixels, whole.front)
     body = parts[note["on_part"]].poses
     angles = place_unseen_angles(frames, masks, k, body, np.asarray(masks[0], bool), part.pixels, depth,
@@ -464,6 +467,20 @@ def _place_unseen(parts: list[_Part], index: int, tracks: Tracks, track_labels: 
     part.recovered = dict(sorted(part.recovered.items()))
     note["range_deg"] = np.round(np.degrees([angles.min(), angles.max()]), 2).tolist()
     note["placed_by_pixels"] = int(unseen.sum())
+
+
+def _unanchored(visible: np.ndarray, unseen: np.ndarray) -> np.ndarray:
+    """(T,) bool: the frames of ``unseen`` (T,) after frame 0, and every later frame where fewer than
+    :data:`_HINGE_MIN_TRACKS` of a hinge's tracks seen (``visible`` (T, M)) were seen before the first of them.
+    A door that turns edge-on and on shows its other face, and the tracks seeded there fix their own depths:
+    they place its turn from where they start, the angle at which they start only as their relief allows."""
+    out = np.asarray(unseen, bool).copy()
+    out[0] = False
+    if out.any():
+        first = int(np.argmax(out))
+        anchored = visible[:first].any(axis=0)
+        out[first:] |= visible[first:, anchored].sum(axis=1) < _HINGE_MIN_TRACKS
+    return out
 
 
 def _outline_box(mask0: np.ndarray, k: np.ndarray, whole: ShapePrior) -> Cuboid | None:

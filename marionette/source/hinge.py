@@ -66,6 +66,8 @@ class HingeFit:
         Tracks left out of the final fit as not following the hinge.
     seen : (T,) int
         Tracks of the final fit seen in each frame: what placed its angle (none: it kept its start).
+    followers : (M,) bool
+        Which of the tracks given are the final fit's.
     """
 
     poses: np.ndarray
@@ -76,6 +78,7 @@ class HingeFit:
     free_residual_px: float
     dropped: int
     seen: np.ndarray
+    followers: np.ndarray
 
 
 def hinge_poses(body_poses: np.ndarray, axis: np.ndarray, point: np.ndarray, angles: np.ndarray) -> np.ndarray:
@@ -148,7 +151,8 @@ def fit_hinge(uv: np.ndarray, visible: np.ndarray, body_poses: np.ndarray, free_
         angles = _wrapped(angles)
         poses = hinge_poses(body_poses, axis, point, angles)
         hinged = float(np.median(np.linalg.norm(every.residuals(poses, k)[0], axis=1)))
-        return (HingeFit(poses, axis, point, angles, hinged, free, dropped, visible[:, tracks].sum(axis=1)),
+        return (HingeFit(poses, axis, point, angles, hinged, free, dropped, visible[:, tracks].sum(axis=1),
+                         tracks),
                 dropped / (tracks.sum() + dropped))
 
     fits = [fit for fit in (completed((axis0, point0, scale * angles0[key])) for scale in start_scales) if fit]
