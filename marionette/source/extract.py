@@ -377,10 +377,9 @@ def _fit_joints(parts: list[_Part], tracks: Tracks, track_labels: np.ndarray, fr
         else:
             if kind == "hinge":  # chosen on the tracks as tracked, its angles from the tracks re-aligned
                 fit = _realigned_hinge(part, fit, body.poses, tracks, off_seams, frames, masks, k)
-            part.poses, part.hinge = fit.poses, fit if kind == "hinge" else None
-            if kind == "hinge":
-                part.hinge_tracks = np.zeros(tracks.num_tracks, bool)
+                part.hinge, part.hinge_tracks = fit, np.zeros(tracks.num_tracks, bool)
                 part.hinge_tracks[np.flatnonzero(off_seams == part.group)[fit.followers]] = True
+            part.poses = fit.poses
             for t in sorted(part.failed):  # a frame the free fit lost, placed by its tracks on the joint
                 if fit.seen[t] >= _HINGE_MIN_TRACKS:
                     del part.failed[t]
@@ -437,7 +436,7 @@ def _fit_pixel_joint(parts: list[_Part], index: int, tracks: Tracks, track_label
     if fit is None or fit.cost >= fit.start_cost:
         notes[str(index)]["pixels"] = "no hinge or slider explains its pixels better than its poses"
         return
-    part.poses, part.surface, part.hinge = fit.poses, depth, None
+    part.poses, part.surface, part.hinge, part.hinge_tracks = fit.poses, depth, None, None
     part.failed.clear()
     joint = ({"point": np.round(fit.point, 4).tolist(),
               "range_deg": np.round(np.degrees([fit.values.min(), fit.values.max()]), 2).tolist()}
