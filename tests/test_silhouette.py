@@ -72,6 +72,7 @@ def test_the_report_lists_frames_with_more_than_the_stray_share():
     summary = report.summary()
     assert summary["stray_frames"] == [1] and summary["iou_median"] == 1.0
     assert summary["worst_frame"] == 1 and summary["iou_worst"] < 1.0
+    assert summary["iou_per_frame"] == [1.0, summary["iou_worst"], 1.0]
 
 
 def test_alpha_and_mask_of_different_sizes_are_refused():

@@ -72,8 +72,10 @@ class SilhouetteReport:
         return np.flatnonzero(self.stray_share > STRAY_SHARE)
 
     def summary(self) -> dict:
-        """Median and worst IoU (and its frame), stray frames and the largest stray share, JSON-ready."""
+        """Median and worst IoU (and its frame), stray frames and the largest stray share, every frame's IoU;
+        JSON-ready."""
         worst = int(np.argmin(self.iou))
         return {"iou_median": round(float(np.median(self.iou)), 4), "iou_worst": round(float(self.iou[worst]), 4),
                 "worst_frame": worst, "stray_frames": self.stray_frames.tolist(),
-                "stray_share_max": round(float(self.stray_share.max()), 5)}
+                "stray_share_max": round(float(self.stray_share.max()), 5),
+                "iou_per_frame": [round(float(x), 4) for x in self.iou]}

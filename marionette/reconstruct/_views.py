@@ -35,6 +35,9 @@ class FitView:
     frame_box : (4,) int or None
         The whole frame ``x0, y0, x1, y1`` (exclusive ends) in the crop's pixels; None: the crop is the
         frame. What projects inside the frame but outside the crop is off the object.
+    covered : bool
+        Something in front covers part of the object (:mod:`.occlusion`): the mask shows only the rest, and the
+        fit is told only that the object is there and looks so, not that it is absent elsewhere.
     """
 
     frame: int
@@ -42,6 +45,7 @@ class FitView:
     target: np.ndarray
     mask: np.ndarray
     frame_box: tuple[int, int, int, int] | None = None
+    covered: bool = False
 
 
 def box_size(mask: np.ndarray) -> np.ndarray:
@@ -59,7 +63,8 @@ def crop_box(mask: np.ndarray, margin: float = 0.1, pad: int = 4) -> tuple[int, 
             min(int(xs.max()) + 1 + m, w), min(int(ys.max()) + 1 + m, h))
 
 
-def make_view(frame_index: int, image: np.ndarray, mask: np.ndarray, K: np.ndarray, scale: float) -> FitView:
+def make_view(frame_index: int, image: np.ndarray, mask: np.ndarray, K: np.ndarray, scale: float, *,
+              covered: bool = False) -> FitView:
     """A fitting view of one frame.
 
     Parameters
@@ -69,6 +74,7 @@ def make_view(frame_index: int, image: np.ndarray, mask: np.ndarray, K: np.ndarr
     mask : (H, W) bool object mask; not empty.
     K : (3, 3) intrinsics of the prior.
     scale : working resolution over the prior's (<= 1).
+    covered : something in front covers part of the object (see :class:`FitView`).
     """
     h, w = mask.shape
     camera = Camera(K, np.eye(4), w, h)
@@ -89,4 +95,4 @@ def make_view(frame_index: int, image: np.ndarray, mask: np.ndarray, K: np.ndarr
     cover = np.ascontiguousarray(cover[y0:y1, x0:x1])
     target = rgb * cover[..., None] + (1.0 - cover[..., None])  # object composited onto white by its coverage
     frame_box = (-x0, -y0, cover_full_w - x0, cover_full_h - y0)
-    return FitView(frame_index, crop_cam, np.ascontiguousarray(target, dtype=np.float32), cover, frame_box)
+    return FitView(frame_index, crop_cam, np.ascontiguousarray(target, dtype=np.float32), cover, frame_box, covered)

@@ -15,7 +15,9 @@ and 3DGS's adaptive density control (Sec. 5.2): Gaussians with a large mean
 screen-space positional gradient are cloned (small ones) or split in two
 (large ones), and nearly transparent ones are pruned. Each frame is cropped
 to its object and downscaled (:mod:`._views`); gradients come from
-:func:`marionette.render.render_with_grad`.
+:func:`marionette.render.render_with_grad`. Frames where something in front
+covers the object (:mod:`.occlusion`) count only where it shows; once fitted,
+Gaussians off the mask in many frames are dropped (:mod:`.strays`).
 
 Colours are SH of degree 1 in the object's frame, turned with their part at
 every frame: an object turning under a fixed light and camera changes its
@@ -50,6 +52,7 @@ from ..render.sh import rotate_sh
 from ..trajectory import Trajectory
 from ._init import initial_gaussians, pose_gaussians
 from ._views import FitView, box_size, make_view
+from .occlusion import covered_frames
 from .posing import per_part
 from .quality import FitQuality, fit_quality
 from .shading import (
@@ -64,6 +67,7 @@ from .shading import (
     unit_rows,
 )
 from .ssim import dssim_and_grad
+from .strays import stray_gaussians
 
 if TYPE_CHECKING:
     from .joint import PoseFit
@@ -341,12 +345,16 @@ def _posed(params: dict, parts: np.ndarray, poses: np.ndarray, q_pose: np.ndarra
 def _image_loss(image: np.ndarray, alpha: np.ndarray, view: FitView, mask_weight: float,
                 ssim_weight: float) -> tuple[float, np.ndarray, np.ndarray]:
     """Loss of a render, image (H, W, 3) and alpha (H, W), against the view, and its gradients with respect to
-    the image (H, W, 3) and the alpha (H, W)."""
+    the image (H, W, 3) and the alpha (H, W). A covered view counts the colours on its mask only, and the alpha
+    only where it falls short of the mask (what is drawn off it may be behind what covers it); no SSIM."""
     res = image - view.target  # (H, W, 3)
     a_res = alpha - view.mask  # (H, W)
+    shown = view.mask[..., None] if view.covered else 1.0
+    if view.covered:
+        res, a_res, ssim_weight = res * shown, np.minimum(a_res, 0.0), 0.0
     npx = res.shape[0] * res.shape[1]
     loss = float((1 - ssim_weight) * np.abs(res).mean() + mask_weight * (a_res ** 2).mean())
-    d_image = ((1 - ssim_weight) / (3 * npx)) * np.sign(res)
+    d_image = ((1 - ssim_weight) / (3 * npx)) * np.sign(res) * shown
     if ssim_weight > 0:
         dssim, d_dssim = dssim_and_grad(image, view.target)
         loss += ssim_weight * dssim
@@ -388,7 +396,7 @@ def _outside(params: dict, posed_means: np.ndarray, view: FitView, weight: float
     deviation in pixels), counted as the crop's own pixels are: ``weight · Σ o² π σ² / (H W)``.
     """
     grad = np.zeros(len(posed_means))
-    if view.frame_box is None or weight == 0 or not len(posed_means):
+    if view.frame_box is None or weight == 0 or not len(posed_means) or view.covered:
         return 0.0, grad
     cam = view.camera
     z = posed_means[:, 2]
@@ -543,18 +551,20 @@ def reconstruct_object(frames, masks, prior: SpatPrior, *, frames_used: Sequence
     w, h = (int(v) for v in prior.image_size)
     scale = min(1.0, options.max_side / max(w, h))
     coarse_steps = options.coarse_steps
+    covered = covered_frames(masks)
     views, coarse = [], []
     for t in visible:  # each frame read once (a video decodes it again on every read)
         image, mask = np.asarray(frames[t]), np.asarray(masks[t], bool)
         if options.object_side is not None:
             scale = min(1.0, options.object_side / box_size(mask).max())
-        views.append(make_view(t, image, mask, prior.intrinsics, scale))
+        views.append(make_view(t, image, mask, prior.intrinsics, scale, covered=t in covered))
         if coarse_steps:
-            coarse.append(make_view(t, image, mask, prior.intrinsics, scale / 2))
+            coarse.append(make_view(t, image, mask, prior.intrinsics, scale / 2, covered=t in covered))
     coarse = coarse or views
     budget = gaussian_budget(views, options)
-    picks = np.unique(np.rint(np.linspace(0, len(visible) - 1, min(options.init_frames, len(visible)))).astype(int))
-    gaussians, parts = initial_gaussians(frames, masks, prior, [visible[i] for i in picks], visible,
+    whole = [t for t in visible if t not in covered] or visible  # a covered mask would carve the object
+    picks = np.unique(np.rint(np.linspace(0, len(whole) - 1, min(options.init_frames, len(whole)))).astype(int))
+    gaussians, parts = initial_gaussians(frames, masks, prior, [whole[i] for i in picks], whole,
                                          cells=options.init_cells, max_gaussians=budget,
                                          seed=options.seed)
     radius = float(np.max(prior.radii))
@@ -603,15 +613,18 @@ def reconstruct_object(frames, masks, prior: SpatPrior, *, frames_used: Sequence
                "log_scales": options.lr_log_scales, "logits": options.lr_opacity, "dc": options.lr_colour,
                "rest": options.lr_colour / 20, "normals": options.lr_normals}
         weight = 1.0 if pose_fit is None else pose_fit.frame_weight(view.frame, loss)
+        if view.covered:  # it tells where the object is, not its shape: the rest of it is behind something
+            weight = 0.0
         adam.update(params, {k: grads[k] * weight for k in params}, lrs)
-        if light is not None:
+        if light is not None and not view.covered:
             light_adam.update(light, {k: grads[k] for k in light},
                               {"direction": options.lr_light, "diffuse": options.lr_diffuse})
         if pose_fit is not None:
             poses[view.frame] = pose_fit.step(view.frame, grads["pose"], it, total)
             q_pose[view.frame] = matrix_to_quaternion(poses[view.frame][:, :3, :3])
-        accum += screen
-        seen += screen > 0
+        if not view.covered:
+            accum += screen
+            seen += screen > 0
         if (it + 1) % options.densify_every == 0:
             losses["fit"].append(float(np.mean(block)))
             block = []
@@ -622,8 +635,10 @@ def reconstruct_object(frames, masks, prior: SpatPrior, *, frames_used: Sequence
             progress(it + 1, total)
     if block:
         losses["fit"].append(float(np.mean(block)))
-    # Final prune of what the fit made transparent.
+    # Final prune of what the fit made transparent, and of what draws off the object in many frames.
     keep = 1 / (1 + np.exp(-params["logits"])) >= options.prune_opacity
+    keep &= ~stray_gaussians(params["means"], parts, {t: poses[t] for t in visible if t not in covered}, masks,
+                             prior.intrinsics)
     if keep.sum() >= 1:
         params = {k: v[keep] for k, v in params.items()}
         parts = parts[keep]

@@ -13,15 +13,25 @@ DAVIS clips with their masks the median IoU is 0.975-0.991, on
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
+from scipy import ndimage
 
 from ..prior import SpatPrior
 
-__all__ = ["FitQuality", "fit_quality", "frame_iou", "POOR_IOU"]
+__all__ = ["FitQuality", "fit_quality", "placed_frames", "POOR_IOU", "PLACED_IOU"]
 
 #: A fit whose median silhouette IoU over its frames is below this does not explain them as one rigid object.
 POOR_IOU = 0.85
+#: A frame whose fitted silhouette matches its mask at least this well is placed.
+PLACED_IOU = 0.8
+#: Where something in front hides part of the object the mask shows only the rest: 95 % of the mask's pixels must
+#: lie within this share of the fitted silhouette's radius (``sqrt(area / π)``) of it ...
+HIDDEN_REACH = 0.05
+#: ... and the silhouette's area be within this factor of what the nearest placed frames on either side
+#: interpolate to.
+HIDDEN_AREA = 1.25
 #: At most this many fitted frames are scored, evenly spread.
 SCORED_FRAMES = 16
 
@@ -78,11 +88,60 @@ def fit_quality(reconstruction, frames, masks, prior: SpatPrior, frames_fitted) 
 
 def _iou(alpha: np.ndarray, mask: np.ndarray) -> float:
     """IoU of the silhouette ``alpha >= 0.5`` (H, W) with the mask (H, W) bool (1 when both are empty)."""
-    silhouette = alpha >= 0.5
+    return _overlap(alpha >= 0.5, mask)
+
+
+def placed_frames(silhouette: Callable[[int], np.ndarray], masks, candidates) -> dict[int, str]:
+    """The candidate frames whose fitted silhouette explains their mask, each with a note saying how.
+
+    ``silhouette(t)`` is frame t's fitted silhouette (H, W) bool; ``masks`` (T, H, W) bool. A frame is placed
+    when its silhouette's IoU with the mask is at least :data:`PLACED_IOU`, or, where the mask shows only what
+    something in front leaves (a ball behind a trunk), when the whole object is drawn where that rest is: the
+    mask's pixels lie on the silhouette (within :data:`HIDDEN_REACH`) and the silhouette has the size that the
+    nearest frames on either side that match their masks interpolate to (within :data:`HIDDEN_AREA`).
+    """
+    drawn: dict[int, np.ndarray] = {}
+
+    def seen(t: int) -> np.ndarray:
+        if t not in drawn:
+            drawn[t] = np.asarray(silhouette(t), bool)
+        return drawn[t]
+
+    def matched(t: int) -> float:
+        return _overlap(seen(t), np.asarray(masks[t], bool))
+
+    def reference(t: int, step: int) -> int | None:
+        u = t + step
+        while 0 <= u < len(masks) and matched(u) < PLACED_IOU:
+            u += step
+        return u if 0 <= u < len(masks) else None
+
+    notes = {}
+    for t in sorted(set(int(t) for t in candidates)):
+        iou = matched(t)
+        if iou >= PLACED_IOU:
+            notes[t] = f"silhouette IoU {iou:.2f}"
+            continue
+        mask, drawn_t = np.asarray(masks[t], bool), seen(t)
+        area, shown = int(drawn_t.sum()), int(mask.sum())
+        if not shown or not area:
+            continue
+        off = float(np.percentile(ndimage.distance_transform_edt(~drawn_t)[mask], 95))
+        if off > HIDDEN_REACH * np.sqrt(area / np.pi):
+            continue
+        sides = [u for u in (reference(t, -1), reference(t, 1)) if u is not None]
+        if not sides:
+            continue
+        sizes = [float(seen(u).sum()) for u in sides]
+        expected = sizes[0] if len(sides) == 1 else float(np.interp(t, sides, sizes))
+        if 1 / HIDDEN_AREA <= area / expected <= HIDDEN_AREA:
+            notes[t] = (f"drawn whole behind something in front: the mask shows {shown / area:.0%} of it, its "
+                        f"pixels within {off:.1f} px of it, at {area / expected:.0%} of the size of frames "
+                        f"{' and '.join(map(str, sides))}")
+    return notes
+
+
+def _overlap(silhouette: np.ndarray, mask: np.ndarray) -> float:
+    """IoU of two (H, W) bool images (1 when both are empty)."""
     union = (silhouette | mask).sum()
     return float((silhouette & mask).sum() / union) if union else 1.0
-
-
-def frame_iou(reconstruction, prior: SpatPrior, mask: np.ndarray, t: int) -> float:
-    """Silhouette IoU of the reconstruction at frame ``t`` of ``prior`` (as filmed) against mask (H, W)."""
-    return _iou(reconstruction.render_filmed(prior, t).alpha, np.asarray(mask, bool))

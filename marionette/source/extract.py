@@ -46,7 +46,7 @@ from ..io.video import PackedMasks, VideoFrames
 from ..prior import CAMERA_EXTRA, SpatPrior
 from ..progress import ProgressCallback, Reporter
 from ..reconstruct.joint import JointOptions, joint_fit
-from ..reconstruct.quality import frame_iou
+from ..reconstruct.quality import placed_frames
 from ..target.cuboid import MIN_BOX_IOU, Cuboid, box_depth, fit_cuboid
 from .camera_motion import estimate_camera_motion, to_world
 from .depth import DepthMaps, poses_from_depth
@@ -596,10 +596,6 @@ def whole_object_poses(tracks: Tracks, shape: ShapePrior, options: RigidOptions 
     return poses
 
 
-#: A failed frame whose jointly fitted silhouette matches its mask at least this well was placed by the fit.
-PLACED_IOU = 0.8
-
-
 def _check_inputs(camera_K, fps, depths, shape: tuple[int, int, int]) -> np.ndarray:
     k = np.asarray(camera_K, dtype=np.float64) if isinstance(camera_K, (np.ndarray, list, tuple)) else None
     if k is None or k.shape != (3, 3) or not np.all(np.isfinite(k)) or not (k[0, 0] > 0 and k[1, 1] > 0):
@@ -931,8 +927,9 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
 def _fit_jointly(prior: SpatPrior, frames, masks, options: ExtractOptions, stages: _Stages) -> SpatPrior:
     """The prior with its poses fitted again together with the object (:func:`joint_fit`), smoothed as before.
 
-    A failed (interpolated) part-frame whose fitted silhouette then matches its mask (IoU >= :data:`PLACED_IOU`)
-    is listed as recovered, "placed by the joint fit"; the others stay failed. Metadata ``joint_fit``: the
+    A failed (interpolated) part-frame whose fitted silhouette then explains its mask
+    (:func:`~marionette.reconstruct.quality.placed_frames`: it matches, or holds what something in front leaves of
+    it) is listed as recovered, "placed by the joint fit"; the others stay failed. Metadata ``joint_fit``: the
     time, the Gaussians' count, the fit's silhouette IoU and how far the poses turned.
     """
     metadata = dict(prior.metadata)
@@ -947,11 +944,12 @@ def _fit_jointly(prior: SpatPrior, frames, masks, options: ExtractOptions, stage
         refined = prior.with_poses(poses, centres)
         failed, recovered = dict(metadata["failed_frames"]), dict(metadata["recovered_frames"])
         filmed = refined.motion_in("filmed")
+        placed = placed_frames(lambda t: fit.reconstruction.render_filmed(filmed, t).alpha >= 0.5, masks,
+                               [int(key.split(":")[1]) for key in failed])
         for key in list(failed):
             t = int(key.split(":")[1])
-            iou = frame_iou(fit.reconstruction, filmed, masks[t], t)
-            if iou >= PLACED_IOU:
-                recovered[key] = f"placed by the joint fit (silhouette IoU {iou:.2f}); tracks: {failed.pop(key)}"
+            if t in placed:
+                recovered[key] = f"placed by the joint fit ({placed[t]}); tracks: {failed.pop(key)}"
     quality = fit.reconstruction.quality.summary()
     metadata.update(failed_frames=failed, recovered_frames=dict(sorted(recovered.items())),
                     joint_fit={"seconds": round(fit.seconds, 2), "gaussians": len(fit.reconstruction.parts),
