@@ -15,8 +15,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable
 
+import cv2
 import numpy as np
-from scipy import ndimage
 
 from ..prior import SpatPrior
 
@@ -126,7 +126,8 @@ def placed_frames(silhouette: Callable[[int], np.ndarray], masks, candidates) ->
         area, shown = int(drawn_t.sum()), int(mask.sum())
         if not shown or not area:
             continue
-        off = float(np.percentile(ndimage.distance_transform_edt(~drawn_t)[mask], 95))
+        reach = cv2.distanceTransform((~drawn_t).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        off = float(np.percentile(reach[mask], 95))
         if off > HIDDEN_REACH * np.sqrt(area / np.pi):
             continue
         sides = [u for u in (reference(t, -1), reference(t, 1)) if u is not None]

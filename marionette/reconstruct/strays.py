@@ -14,6 +14,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from ..camera import Camera
 from .posing import per_part
 
 __all__ = ["stray_gaussians", "STRAY_REACH_PX", "STRAY_FRAMES"]
@@ -36,12 +37,10 @@ def stray_gaussians(means: np.ndarray, parts: np.ndarray, poses: dict, masks, K:
         if not mask.any():
             continue
         h, w = mask.shape
-        camera = per_part(means.astype(np.float64), parts, pose[:, :3, :3], pose[:, :3, 3])
-        z = camera[:, 2]
-        front = z > 1e-9
-        u = np.floor(K[0, 0] * camera[:, 0] / np.where(front, z, 1) + K[0, 2]).astype(np.int64)
-        v = np.floor(K[1, 1] * camera[:, 1] / np.where(front, z, 1) + K[1, 2]).astype(np.int64)
-        inside = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        uv, z = Camera(K, np.eye(4), w, h).project(per_part(means.astype(np.float64), parts, pose[:, :3, :3],
+                                                            pose[:, :3, 3]))
+        u, v = np.floor(uv).astype(np.int64).T
+        inside = (z > 1e-9) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
         distance = cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
         far = np.zeros(len(means), bool)
         far[inside] = distance[v[inside], u[inside]] > STRAY_REACH_PX

@@ -944,10 +944,10 @@ def _fit_jointly(prior: SpatPrior, frames, masks, options: ExtractOptions, stage
         refined = prior.with_poses(poses, centres)
         failed, recovered = dict(metadata["failed_frames"]), dict(metadata["recovered_frames"])
         filmed = refined.motion_in("filmed")
+        frame_of = {key: int(key.split(":")[1]) for key in failed}
         placed = placed_frames(lambda t: fit.reconstruction.render_filmed(filmed, t).alpha >= 0.5, masks,
-                               [int(key.split(":")[1]) for key in failed])
-        for key in list(failed):
-            t = int(key.split(":")[1])
+                               frame_of.values())
+        for key, t in frame_of.items():
             if t in placed:
                 recovered[key] = f"placed by the joint fit ({placed[t]}); tracks: {failed.pop(key)}"
     quality = fit.reconstruction.quality.summary()
