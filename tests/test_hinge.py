@@ -8,8 +8,8 @@ from scipy.spatial.transform import Rotation
 
 from marionette.geometry import rotation_angle_deg
 from marionette.source.extract import _HINGE_TOLERANCE_PX
-from marionette.source.hinge import _initial_hinge, _wrapped, fit_hinge, hinge_poses
-from marionette.source.joint_tracks import Observations
+from marionette.source.hinge import HingeFit, _initial_hinge, _wrapped, fit_hinge, hinge_poses, scaled_hinge
+from marionette.source.joint_tracks import Observations, surface_scale
 
 K = np.array([[300.0, 0, 160], [0, 300.0, 120], [0, 0, 1]])
 T = 24
@@ -87,6 +87,24 @@ def test_on_a_still_body_the_part_keeps_the_depth_of_its_free_fit(hinge):
     assert rotation_angle_deg(fit.poses[:, :3, :3] @ np.swapaxes(true[:, :3, :3], -1, -2)).max() < 0.05
     scale = np.sum(fit.poses[:, :3, 3] * true[:, :3, 3]) / np.sum(true[:, :3, 3] ** 2)
     assert 0.8 < scale < 1.25 and np.abs(fit.poses[:, :3, 3] - scale * true[:, :3, 3]).max() < 1e-3
+
+
+@pytest.mark.parametrize("scale", [0.7, 1.4])
+def test_on_a_still_body_the_axis_takes_its_distance_from_the_surface(hinge, scale):
+    """A hinge whose axis (and part) sit nearer or farther than they are, which the tracks on a still body leave
+    free, comes back to the true axis once the part's frame-0 points sit on the body's surface."""
+    _, axis, point, angles, points, _, visible = hinge
+    still = np.tile(np.eye(4), (T, 1, 1))
+    uv = np.where(visible[..., None], project(hinge_poses(still, axis, point, angles), points), np.nan)
+    surface = np.full((240, 320), np.nan)  # the lid's plane, z = 5 + 4/3 y, along each pixel's ray
+    rows, cols = np.mgrid[:240, :320]
+    y = (rows - K[1, 2]) / K[1, 1]
+    surface[60:200, 60:260] = (5.0 / (1 - 4 / 3 * y))[60:200, 60:260]
+    off = HingeFit(hinge_poses(still, axis, scale * point, angles), axis, scale * point, angles, 0.0, 0.0, 0,
+                   np.zeros(T, int), np.ones(len(points), bool))
+    factor = surface_scale(lambda f: scaled_hinge(off, still, f).poses, angles, uv, visible, K, surface)
+    assert factor == pytest.approx(1 / scale, rel=1e-3)
+    np.testing.assert_allclose(scaled_hinge(off, still, factor).point, point, atol=5e-3)
 
 
 def test_tracks_of_another_part_are_dropped(hinge):

@@ -9,7 +9,8 @@ from scipy.spatial.transform import Rotation
 from marionette.geometry import rotation_angle_deg
 from marionette.source.extract import _HINGE_TOLERANCE_PX
 from marionette.source.hinge import hinge_poses
-from marionette.source.slider import _initial_slider, fit_slider, slider_poses
+from marionette.source.joint_tracks import surface_scale
+from marionette.source.slider import SliderFit, _initial_slider, fit_slider, scaled_slider, slider_poses
 
 K = np.array([[300.0, 0, 160], [0, 300.0, 120], [0, 0, 1]])
 T = 24
@@ -98,3 +99,49 @@ def test_a_part_wandering_about_is_not_made_a_slider(slider):
     uv = project(free, points)
     fit = fit_slider(uv, np.ones(uv.shape[:2], bool), body, free, K)
     assert fit is None or fit.residual_px > fit.free_residual_px + _HINGE_TOLERANCE_PX
+
+
+def _surface(points: np.ndarray) -> np.ndarray:
+    """(240, 320) frame-0 depth of the drawer's front plane (z = 4.6) over its pixels, NaN elsewhere."""
+    uv = project(np.eye(4)[None], points)[0]
+    surface = np.full((240, 320), np.nan)
+    lo, hi = np.floor(uv.min(axis=0)).astype(int) - 2, np.ceil(uv.max(axis=0)).astype(int) + 2
+    surface[lo[1]:hi[1], lo[0]:hi[0]] = 4.6
+    return surface
+
+
+@pytest.mark.parametrize("short", [0.5, 1.0, 1.6])
+def test_on_a_still_body_the_travel_takes_its_length_from_the_surface(slider, short):
+    """A slider whose travel is off by a factor (the tracks leave it free on a still body) comes back to the
+    true length once its front sits on the body's surface, though more of its tracks are the body's (still;
+    some covered halfway) than its own."""
+    _, axis, distances, points, _, _ = slider
+    rng = np.random.default_rng(1)
+    front = points[points[:, 2] == 4.6]
+    still = np.tile(np.eye(4), (T, 1, 1))
+    body_points = np.column_stack([rng.uniform(-0.6, 0.6, 150), rng.uniform(0.25, 0.35, 150), np.full(150, 4.6)])
+    uv = np.concatenate([project(slider_poses(still, axis, distances), front), project(still, body_points)], axis=1)
+    visible = np.ones(uv.shape[:2], bool)
+    visible[T // 2:, len(front):len(front) + 20] = False  # under the drawer: covered as it comes out
+    surface = _surface(np.concatenate([front, body_points]))
+    off = SliderFit(slider_poses(still, axis, short * distances), axis, short * distances, 0.0, 0.0, 0,
+                    np.zeros(T, int))
+    uv = np.where(visible[..., None], uv, np.nan)
+    factor = surface_scale(lambda f: scaled_slider(off, still, f).poses, distances, uv, visible, K, surface)
+    assert factor == pytest.approx(1.0 / short, rel=1e-3)
+    scaled = scaled_slider(off, still, factor)
+    np.testing.assert_allclose(scaled.distances, distances, atol=1e-3 * distances.max())
+    np.testing.assert_allclose(scaled.poses, slider_poses(still, axis, distances), atol=1e-3)
+
+
+def test_the_surface_gives_no_scale_without_tracks_that_see_the_travel(slider):
+    """Tracks lost early in the travel, or off the surface, give no factor."""
+    _, axis, distances, points, _, _ = slider
+    still = np.tile(np.eye(4), (T, 1, 1))
+    uv = project(slider_poses(still, axis, distances), points)
+    fit = SliderFit(slider_poses(still, axis, distances), axis, distances, 0.0, 0.0, 0, np.zeros(T, int))
+    lost = np.ones(uv.shape[:2], bool)
+    lost[distances >= 0.25 * distances.max()] = False  # lost before a quarter of the travel
+    poses = lambda f: scaled_slider(fit, still, f).poses  # noqa: E731
+    assert surface_scale(poses, distances, uv, lost, K, _surface(points)) is None
+    assert surface_scale(poses, distances, uv, np.ones(uv.shape[:2], bool), K, np.full((240, 320), np.nan)) is None

@@ -52,15 +52,15 @@ from .camera_motion import estimate_camera_motion, to_world
 from .depth import DepthMaps, poses_from_depth
 from .focal import FOCAL_SCALES, estimate_focal
 from .foreground import auto_masks
-from .hinge import HingeFit, fit_hinge, hinge_poses
-from .joint_tracks import Observations
+from .hinge import HingeFit, fit_hinge, hinge_poses, scaled_hinge
+from .joint_tracks import Observations, surface_scale
 from .part_pixels import find_still_part, label_pixels, part_depth
 from .parts import OFF_OBJECT, OUTLIER, STATIC, PartSegmentation, TooFewTracks, segment_parts
 from .pixel_joint import fit_pixel_joint, place_unseen_angles
 from .recover import FrameRecovery
 from .rigid import RigidOptions, ShapePrior, carved_centroid, fit_rigid
 from .seed_align import realign_to_seeds
-from .slider import SliderFit, fit_slider
+from .slider import SliderFit, fit_slider, scaled_slider
 from .smoothing import smooth_poses
 from .tracks import Tracks, _check_video, track
 
@@ -169,7 +169,7 @@ class _Part:
     failed: dict[int, str]  # frames whose pose was interpolated, with the reason
     recovered: dict[int, str]  # frames the tracks lost whose pose was found again (alignment, hinge, PnP retried)
     points: np.ndarray | None = None  # (N, 3) its triangulated tracks at frame 0
-    surface: np.ndarray | None = None  # (H, W) frame-0 depth its joint was fitted on, when from its pixels
+    surface: np.ndarray | None = None  # (H, W) frame-0 depth its joint was fitted on (or scaled to)
     held: tuple | None = None  # (RigidFit, note): its points held on the outline's box, when that fits as well
     fit_note: str | None = None  # how its poses were fitted, when not the usual way
     hinge: HingeFit | None = None  # the hinge its tracks fit, when kept
@@ -279,6 +279,26 @@ def _realigned_hinge(part: _Part, fit: HingeFit, body_poses: np.ndarray, tracks:
     return dataclasses.replace(again, residual_px=fit.residual_px, free_residual_px=fit.free_residual_px)
 
 
+def _on_the_surface(part: _Part, fit: HingeFit | SliderFit, body_poses: np.ndarray, tracks: Tracks,
+                    track_labels: np.ndarray, k: np.ndarray, surface: np.ndarray,
+                    faces: bool) -> tuple[HingeFit | SliderFit, float | None]:
+    """``fit``, a joint on a still body, scaled about the camera to put ``part``'s frame-0 tracks on ``surface``
+    (H, W), the object's frame-0 front (:func:`surface_scale`); and the factor (None, the fit as it is, when too
+    few tracks tell). Where ``surface`` is the faces of a box, it becomes the part's surface, which its pixels
+    are labelled on (the inflated outline is no better there than its tracks)."""
+    members = track_labels == part.group
+    slider = isinstance(fit, SliderFit)
+    values = fit.distances if slider else fit.angles
+    scaled = scaled_slider if slider else scaled_hinge
+    factor = surface_scale(lambda f: scaled(fit, body_poses, f).poses, values,
+                           tracks.uv[:, members], tracks.visible[:, members], k, surface)
+    if factor is None:
+        return fit, None
+    if faces:
+        part.surface = surface
+    return scaled(fit, body_poses, factor), factor
+
+
 def _kept(fit: HingeFit | SliderFit | None) -> bool:
     """Whether a joint explains its part's tracks about as well as its free poses (within
     :data:`_HINGE_TOLERANCE_PX`): the simpler model, kept."""
@@ -333,14 +353,16 @@ def _based_on_the_stiller(parts: list[_Part], on: int, notes: dict[str, dict]) -
 
 
 def _fit_joints(parts: list[_Part], tracks: Tracks, track_labels: np.ndarray, frames, masks: np.ndarray,
-                k: np.ndarray, progress: ProgressCallback) -> dict[str, dict]:
+                k: np.ndarray, surface: np.ndarray | None, faces: bool, progress: ProgressCallback) -> dict[str, dict]:
     """Refit each part as a hinge on the body (it turns) or a slider (it travels without turning) where that
     fits its tracks as well as its free poses.
 
     The body is a still part when there is one; otherwise each part is tried as the body (its poses held on the
     outline's box where it has them, :attr:`_Part.held`), and the one on which the other parts' joints are kept
     (:func:`_kept`), and then explain the tracks best, is taken: a drawer and its cabinet turn alike, and the
-    part whose free fit turns least need not be the cabinet. Updates the parts' poses and centres in place;
+    part whose free fit turns least need not be the cabinet. A joint on a still body has its scale (a slider's
+    travel, a hinge's axis) from ``surface`` (H, W), the frame-0 depth of the object's front (the ``faces`` of
+    the box its outline shows, or not; :func:`_on_the_surface`). Updates the parts' poses and centres in place;
     returns, per part index, the model kept (with its axis and range) and why.
     """
     static = [i for i, p in enumerate(parts) if p.group == STATIC]
@@ -377,6 +399,10 @@ def _fit_joints(parts: list[_Part], tracks: Tracks, track_labels: np.ndarray, fr
         else:
             if kind == "hinge":  # chosen on the tracks as tracked, its angles from the tracks re-aligned
                 fit = _realigned_hinge(part, fit, body.poses, tracks, off_seams, frames, masks, k)
+            factor = None
+            if body.group == STATIC and surface is not None:  # the joint's scale is the body's, not its free fit's
+                fit, factor = _on_the_surface(part, fit, body.poses, tracks, off_seams, k, surface, faces)
+            if kind == "hinge":
                 part.hinge, part.hinge_tracks = fit, np.zeros(tracks.num_tracks, bool)
                 part.hinge_tracks[np.flatnonzero(off_seams == part.group)[fit.followers]] = True
             part.poses = fit.poses
@@ -394,7 +420,8 @@ def _fit_joints(parts: list[_Part], tracks: Tracks, track_labels: np.ndarray, fr
                 joint = {"range": np.round([fit.distances.min(), fit.distances.max()], 4).tolist()}
             notes[str(index)] = {"model": kind, "on_part": on, "axis": np.round(fit.axis, 4).tolist(), **joint,
                                  "residual_px": round(fit.residual_px, 3),
-                                 "free_residual_px": round(fit.free_residual_px, 3), "dropped_tracks": fit.dropped}
+                                 "free_residual_px": round(fit.free_residual_px, 3), "dropped_tracks": fit.dropped,
+                                 **({} if factor is None else {"scaled_to_the_surface": round(factor, 3)})}
     if not static and len(parts) == 2:
         notes = _based_on_the_stiller(parts, on, notes)
     return notes
@@ -859,7 +886,11 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
     parts.sort(key=lambda p: -p.pixels.sum())
     if options.joints and len(parts) > 1:
         with stages("joints", "fitting joints", len(parts) - 1) as progress:
-            metadata["joints"] = _fit_joints(parts, chains, chain_labels, frames, masks, k, progress)
+            box = outline_box() if STATIC in groups else None  # a joint on a still body: its scale from the front
+            surface = (None if STATIC not in groups else whole.front if box is None
+                       else box_depth(box, k, np.asarray(masks[0], bool)))
+            metadata["joints"] = _fit_joints(parts, chains, chain_labels, frames, masks, k, surface, box is not None,
+                                             progress)
         free = [i for i, note in metadata["joints"].items()  # the pixels found it, or its tracks are few
                 if beside_still is not None or (chain_labels == parts[int(i)].group).sum() < _PIXEL_JOINT_TRACKS]
         if free:  # too few tracks to trust a joint fitted to them: look for one in the pixels

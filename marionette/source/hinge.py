@@ -24,6 +24,7 @@ it explains them about as well as the free poses do (the simpler model).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,7 +33,7 @@ from scipy.spatial.transform import Rotation
 from ..geometry import invert_transform, rotation_angle_deg
 from .joint_tracks import Observations, fit_frame_parameter, fit_joint_tracks, key_frames
 
-__all__ = ["HingeFit", "fit_hinge", "hinge_poses"]
+__all__ = ["HingeFit", "fit_hinge", "hinge_poses", "scaled_hinge"]
 
 #: The key frames' fit starts from the free fit's angles times each of these, and the hinge that explains the
 #: tracks best is kept. Its cost has several minima where the turn trades against the part's relief, and free
@@ -88,6 +89,14 @@ def hinge_poses(body_poses: np.ndarray, axis: np.ndarray, point: np.ndarray, ang
     turn[:, :3, :3] = rot
     turn[:, :3, 3] = point - rot @ point
     return body_poses @ turn
+
+
+def scaled_hinge(fit: HingeFit, body_poses: np.ndarray, factor: float) -> HingeFit:
+    """``fit`` with its axis ``factor`` times as far from the camera (its poses on ``body_poses`` (T, 4, 4)): on a
+    still body the part and its axis scaled together about the camera change no image
+    (:func:`.joint_tracks.surface_scale` finds the factor)."""
+    point = fit.point * factor
+    return dataclasses.replace(fit, point=point, poses=hinge_poses(body_poses, fit.axis, point, fit.angles))
 
 
 def _initial_hinge(relative: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -17,7 +17,7 @@ from numba import njit
 from scipy.optimize import least_squares
 from threadpoolctl import threadpool_limits
 
-__all__ = ["Observations", "fit_joint_tracks", "fit_frame_parameter", "key_frames"]
+__all__ = ["Observations", "fit_joint_tracks", "fit_frame_parameter", "key_frames", "surface_scale"]
 
 #: Cauchy loss scale of the reprojection residuals, pixels.
 _LOSS_SCALE = 0.5
@@ -36,6 +36,10 @@ _MIN_DEPTH = 1e-6
 _BEHIND_PX = 1e3
 #: A track whose median residual under the first fit exceeds this (pixels) is dropped before the second.
 _DROP_PX = 1.0
+#: A track that never moves further than this (pixels) from where frame 0 sees it tells nothing of a joint's scale.
+_STILL_PX = 1.5
+#: ... nor one lost before the joint reaches this share of its range.
+_FAR_SHARE = 0.25
 
 
 class Observations:
@@ -190,6 +194,40 @@ def fit_frame_parameter(uv: np.ndarray, visible: np.ndarray, points: np.ndarray,
         return (cam[:, :2] / cam[:, 2:] * np.diag(k)[:2] + k[:2, 2] - observed).ravel()
 
     return float(least_squares(residuals, [start], loss="cauchy", f_scale=_LOSS_SCALE).x[0])
+
+
+def surface_scale(poses, values: np.ndarray, uv: np.ndarray, visible: np.ndarray, k: np.ndarray,
+                  surface: np.ndarray) -> float | None:
+    """The factor ``f`` whose ``poses(f)`` (T, 4, 4) best move the points that ``surface`` (H, W) (frame-0 depth,
+    NaN off the object) puts under a part's tracks ``uv`` (T, M, 2) onto them where ``visible`` (T, M) (robust
+    least squares), from the tracks that move and are seen at frame 0 and at a frame where the joint's
+    ``values`` (T,) (angles, distances) reach a quarter of their range; None under 6 such tracks.
+
+    On a still body a part and its joint scaled together about the camera (a slider's travel, a hinge's axis)
+    change no image, and each track's own depth trades against the scale, so the tracks alone do not tell it;
+    the body's surface, which the part is part of at frame 0, does. A track that barely moves (the body's, taken
+    for the part's, or one lost early) would pull towards no motion."""
+    h, w = surface.shape
+    pixel = np.round(np.nan_to_num(uv[0])).astype(int)
+    moved = np.where(visible[..., None], np.abs(np.nan_to_num(uv - uv[0])), 0.0).max(axis=(0, 2))
+    far = np.abs(values) >= _FAR_SHARE * np.abs(values).max()
+    across = visible[0] & visible[far].any(axis=0) & (moved > _STILL_PX)
+    inside = across & (pixel[:, 0] >= 0) & (pixel[:, 0] < w) & (pixel[:, 1] >= 0) & (pixel[:, 1] < h)
+    depth = np.full(len(inside), np.nan)
+    depth[inside] = surface[pixel[inside, 1], pixel[inside, 0]]
+    seen = np.isfinite(depth) & (depth > 0)
+    if seen.sum() < 6:
+        return None
+    rays = np.c_[uv[0, seen], np.ones(seen.sum())] @ np.linalg.inv(k).T
+    points, observed, where = rays * depth[seen, None], uv[:, seen], visible[:, seen]
+
+    def residuals(factor: np.ndarray) -> np.ndarray:
+        scaled = poses(factor[0])
+        cam = np.einsum("tij,mj->tmi", scaled[:, :3, :3], points) + scaled[:, None, :3, 3]
+        return (cam[..., :2] / cam[..., 2:] * np.diag(k)[:2] + k[:2, 2] - observed)[where].ravel()
+
+    with threadpool_limits(limits=1, user_api="blas"):
+        return float(least_squares(residuals, [1.0], loss="cauchy", f_scale=_LOSS_SCALE, bounds=(0.2, 5.0)).x[0])
 
 
 def key_frames(count: int) -> np.ndarray:

@@ -17,6 +17,7 @@ slider when it explains the tracks about as well as the free poses do.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,7 +25,7 @@ import numpy as np
 from ..geometry import invert_transform
 from .joint_tracks import Observations, fit_frame_parameter, fit_joint_tracks, key_frames
 
-__all__ = ["SliderFit", "fit_slider", "slider_poses"]
+__all__ = ["SliderFit", "fit_slider", "scaled_slider", "slider_poses"]
 
 #: A part whose travel stays under this share of its distance from the camera has no direction to find.
 _MIN_TRAVEL = 0.01
@@ -64,6 +65,14 @@ def slider_poses(body_poses: np.ndarray, axis: np.ndarray, distances: np.ndarray
     shift = np.tile(np.eye(4), (len(distances), 1, 1))
     shift[:, :3, 3] = distances[:, None] * axis
     return body_poses @ shift
+
+
+def scaled_slider(fit: SliderFit, body_poses: np.ndarray, factor: float) -> SliderFit:
+    """``fit`` with its travel ``factor`` times as long (its poses on ``body_poses`` (T, 4, 4)): on a still body
+    the part and its travel scaled together about the camera change no image (:func:`.joint_tracks.surface_scale`
+    finds the factor)."""
+    distances = fit.distances * factor
+    return dataclasses.replace(fit, distances=distances, poses=slider_poses(body_poses, fit.axis, distances))
 
 
 def _initial_slider(relative: np.ndarray, centre: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
