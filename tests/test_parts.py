@@ -192,6 +192,28 @@ def test_noise_is_estimated_from_the_tracks_and_can_be_given(hinge):
     assert (given.noise, given.threshold) == (0.5, 1.0)
 
 
+def test_a_drawer_beside_exactly_still_tracks_is_found():
+    # A tracker keeps a still, sharp cabinet's tracks exactly still: the noise estimate, a median over patches
+    # mostly on it, is 0 there, and a part would have to explain its tracks to nothing (a division by zero).
+    rng = np.random.default_rng(3)
+    cabinet = rng.uniform(-1.0, 1.0, (400, 2))
+    beside = (np.abs(cabinet[:, 0]) > 0.7) | (np.abs(cabinet[:, 1] - 0.6) > 0.3)  # not behind the drawer
+    cabinet = np.c_[cabinet[beside][:150], np.full(150, 5.0)]
+    drawer = np.c_[rng.uniform(-0.6, 0.6, 50), rng.uniform(0.4, 0.8, 50), np.full(50, 4.8)]
+    slide = np.tile(np.eye(4), (24, 1, 1))
+    slide[:, 2, 3] = -np.linspace(0.0, 0.6, 24)  # out towards the camera
+    still = np.tile(np.eye(4), (24, 1, 1))
+    uv = np.concatenate([projected_body(still, cabinet), projected_body(slide, drawer)], axis=1)
+    uv[:, 150:] += rng.normal(0.0, 0.02, uv[:, 150:].shape)
+    mask = np.zeros((240, 320), np.uint8)
+    cv2.fillConvexPoly(mask, cv2.convexHull(uv[0].astype(np.int32)), 1)
+    tracks = Tracks(uv.astype(np.float32), np.ones(uv.shape[:2], bool), np.zeros(uv.shape[1], np.int64))
+    seg = segment_parts(tracks, mask.astype(bool), K, 2)
+    assert seg.noise == pytest.approx(0.1)
+    assert seg.num_parts == 1
+    assert np.mean(seg.track_labels[:150] == STATIC) > 0.95 and np.mean(seg.track_labels[150:] == 0) > 0.95
+
+
 def test_one_part_labels_everything_zero(hinge):
     scene, tracks = hinge
     seg = segment_parts(tracks, scene.masks[0], scene.camera.K, 1, static=False)

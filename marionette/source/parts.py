@@ -83,7 +83,7 @@ The noise σ is estimated from the data unless given: the rigid motions of
 small patches of tracks (a dozen, spread over the object at frame 0) are
 fitted to their own tracks, which measures the tracker's error without the
 motion between parts; σ is 3 times the median RMS reprojection error of the
-patch tracks, the threshold 2 σ. Both the truncation and the ``auto``
+patch tracks (at least 0.1 px), the threshold 2 σ. Both the truncation and the ``auto``
 criterion use them, so they follow the footage (real tracks are noisier
 than synthetic ones).
 
@@ -132,6 +132,9 @@ _DEPTH_PRIOR = 16.0
 # absorbs part of the error, and tracker errors have heavier tails than Gaussian ones). The
 # threshold: this multiple of σ.
 _NOISE_SCALE = 3.0
+# σ is never below this (pixels): a tracker keeps the tracks of a still, sharp surface exactly still, and a
+# median over patches mostly on it would ask a moving part to explain its tracks to a few hundredths of a pixel.
+_MIN_NOISE = 0.1
 _THRESHOLD_SCALE = 2.0
 _NOISE_PATCHES = 16
 _NOISE_PATCH = 12
@@ -796,7 +799,7 @@ def segment_parts(tracks: Tracks, object_mask0: np.ndarray, K: np.ndarray, num_p
                        frames=frames, focal=focal, prior_weight=_DEPTH_PRIOR / focal**2, noise=np.nan, cap=np.nan,
                        fit_tracks=int(fit_tracks), rng=np.random.default_rng(seed))
     if noise is None:
-        noise = _NOISE_SCALE * _estimate_noise(problem, uv, _NOISE_PATCHES, _NOISE_PATCH)
+        noise = max(_NOISE_SCALE * _estimate_noise(problem, uv, _NOISE_PATCHES, _NOISE_PATCH), _MIN_NOISE)
     if threshold is None:
         threshold = _THRESHOLD_SCALE * noise
     problem = problem._replace(noise=float(noise), cap=float(threshold / noise) ** 2)
