@@ -13,7 +13,8 @@ upright post of its stand). Each seed draws the object's size, its textures
   when the tracks show one part and the extraction stops) against the true one;
 - axis error: degrees between the fitted axis (hinge axis or direction of travel) and the true one;
 - range error: for a hinge the final angle's error (degrees), for a slider the final travel's relative error
-  (both measured against the part's distance from the camera, which the prior's scale leaves free);
+  (the true scene scaled to the prior's by their bodies' distances from the camera, as for the part motion
+  error below: a part's own centroid, carved from its outline, is no measure of its scale);
 - label IoU: the frame-0 part labels against the true part masks, the mean over the two parts under the best
   matching;
 - body error: the body's largest rotation error over the clip (degrees), and the time of the extraction;
@@ -107,11 +108,16 @@ def score(kind: str, seed: int, *, size: tuple[int, int] | None = None, num_fram
     elif joint["model"] == "slider" == KINDS[kind][2]:
         travel = relative[-1, :3, :3] @ centre + relative[-1, :3, 3] - centre
         row["axis_error"] = _angle(np.asarray(joint["axis"]), travel)
-        true_share = np.linalg.norm(travel) / np.linalg.norm(centre)
-        found_share = max(np.abs(joint["range"])) / np.linalg.norm(prior.centroids[moving, 0])
-        row["range_error"] = abs(found_share / true_share - 1.0) * 100
+        found = max(np.abs(joint["range"])) / _scale(scene, prior, body)
+        row["range_error"] = abs(found / np.linalg.norm(travel) - 1.0) * 100
     row["sheet"] = _sheet_row(scene, labels, body)
     return row
+
+
+def _scale(scene, prior, body: int) -> float:
+    """The prior's units per the scene's: the distances of their bodies (the prior's part ``body``) from the
+    camera at frame 0."""
+    return float(np.linalg.norm(prior.centroids[body, 0]) / np.linalg.norm(scene.part_points[0].mean(axis=0)))
 
 
 def _motion_error(scene, prior, body: int, moving: int) -> float:
@@ -119,7 +125,7 @@ def _motion_error(scene, prior, body: int, moving: int) -> float:
     truth = scene.part_points[1]
     extent = np.linalg.norm(truth - truth.mean(axis=0), axis=1).max()
     centres = np.einsum("tij,j->ti", scene.poses[1][:, :3, :3], truth.mean(axis=0)) + scene.poses[1][:, :3, 3]
-    scale = np.linalg.norm(prior.centroids[body, 0]) / np.linalg.norm(scene.part_points[0].mean(axis=0))
+    scale = _scale(scene, prior, body)
     relative = prior.poses[moving] @ np.linalg.inv(prior.poses[moving][0])
     carried = np.einsum("tij,j->ti", relative[:, :3, :3], scale * centres[0]) + relative[:, :3, 3]
     return float(np.linalg.norm(carried / scale - centres, axis=1).max() / extent)
@@ -259,8 +265,8 @@ READING = (
     "scaled together about the camera change no image, and each track's own depth trades against it): a "
     "slider's travel and a hinge's axis are scaled to put the part's frame-0 tracks on the faces of that box, or "
     "else the inflated outline, which the part is part of at frame 0 (`source/joint_tracks.py` `surface_scale`; "
-    "before, the textured drawers on a still cabinet came out 21-42 % short and the part motion error's median "
-    "on a still body was 0.21 of the part's extent). Joints are fitted to and judged by the tracks off the seams "
+    "before, the part motion error's median on a still body was 0.21 of the part's extent). Joints are fitted to "
+    "and judged by the tracks off the seams "
     "between parts (a "
     "seam track's window is on both parts; with them a hinge fitted a drawer on a turning cabinet better than "
     "a slider), and the body is the part the other's joint is kept on before the one under which the tracks "
