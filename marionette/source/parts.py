@@ -83,7 +83,7 @@ The noise σ is estimated from the data unless given: the rigid motions of
 small patches of tracks (a dozen, spread over the object at frame 0) are
 fitted to their own tracks, which measures the tracker's error without the
 motion between parts; σ is 3 times the median RMS reprojection error of the
-patch tracks (at least 0.1 px), the threshold 2 σ. Both the truncation and the ``auto``
+patch tracks (at least 0.08 px), the threshold 2 σ. Both the truncation and the ``auto``
 criterion use them, so they follow the footage (real tracks are noisier
 than synthetic ones).
 
@@ -134,7 +134,7 @@ _DEPTH_PRIOR = 16.0
 _NOISE_SCALE = 3.0
 # σ is never below this (pixels): a tracker keeps the tracks of a still, sharp surface exactly still, and a
 # median over patches mostly on it would ask a moving part to explain its tracks to a few hundredths of a pixel.
-_MIN_NOISE = 0.1
+_MIN_NOISE = 0.08
 _THRESHOLD_SCALE = 2.0
 _NOISE_PATCHES = 16
 _NOISE_PATCH = 12
