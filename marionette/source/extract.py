@@ -886,11 +886,12 @@ def extract_prior(frames: np.ndarray | VideoFrames, masks: np.ndarray | PackedMa
     parts.sort(key=lambda p: -p.pixels.sum())
     if options.joints and len(parts) > 1:
         with stages("joints", "fitting joints", len(parts) - 1) as progress:
-            box = outline_box() if STATIC in groups else None  # a joint on a still body: its scale from the front
-            surface = (None if STATIC not in groups else whole.front if box is None
-                       else box_depth(box, k, np.asarray(masks[0], bool)))
-            metadata["joints"] = _fit_joints(parts, chains, chain_labels, frames, masks, k, surface, box is not None,
-                                             progress)
+            surface, faces = None, False
+            if STATIC in groups:  # a joint on a still body: its scale from the object's front
+                box = outline_box()
+                surface = whole.front if box is None else box_depth(box, k, np.asarray(masks[0], bool))
+                faces = box is not None
+            metadata["joints"] = _fit_joints(parts, chains, chain_labels, frames, masks, k, surface, faces, progress)
         free = [i for i, note in metadata["joints"].items()  # the pixels found it, or its tracks are few
                 if beside_still is not None or (chain_labels == parts[int(i)].group).sum() < _PIXEL_JOINT_TRACKS]
         if free:  # too few tracks to trust a joint fitted to them: look for one in the pixels

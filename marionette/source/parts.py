@@ -83,9 +83,9 @@ The noise σ is estimated from the data unless given: the rigid motions of
 small patches of tracks (a dozen, spread over the object at frame 0) are
 fitted to their own tracks, which measures the tracker's error without the
 motion between parts; σ is 3 times the median RMS reprojection error of the
-patch tracks (at least 0.08 px), the threshold 2 σ. Both the truncation and the ``auto``
-criterion use them, so they follow the footage (real tracks are noisier
-than synthetic ones).
+patch tracks (at least 0.08 px), the threshold 2 σ. Both the truncation and
+the ``auto`` criterion use them, so they follow the footage (real tracks are
+noisier than synthetic ones).
 
 Tracks visible in fewer than ``min_length`` (subsampled) frames, and tracks
 no motion explains within ``threshold``, are labelled :data:`OUTLIER`.
